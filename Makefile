@@ -1,0 +1,19 @@
+# `make demo`, `make test`, `make bench`: each installs what is missing first (scripts/setup.sh).
+PY := .venv/bin/python
+
+.PHONY: setup demo test bench clean
+
+setup:
+	@bash scripts/setup.sh
+
+demo: setup
+	$(PY) -m mscloth demo --out out
+
+test: setup
+	$(PY) -m pytest -q
+
+bench: setup
+	$(PY) -m mscloth.bench --out bench/RESULTS.md
+
+clean:
+	rm -rf out .pytest_cache

@@ -1,0 +1,29 @@
+"""mscloth: multi-scale surface-based cloth appearance (Zhu et al. 2024) for Mitsuba 3.
+
+Typical use::
+
+    import mitsuba as mi, mscloth
+    mi.set_variant(mscloth.default_variant())
+    mscloth.register()
+    bsdf = mi.load_dict({"type": "cloth", "pattern": "plain"})
+"""
+from .variant import configure_llvm, default_variant, set_default_variant
+from .errors import ClothError, MapsError, ParameterError, PatternError
+
+__version__ = "0.1.0"
+
+# Must happen before Dr.Jit starts its LLVM backend; cheap (a few globs).
+configure_llvm()
+
+
+def register() -> None:
+    """Register mscloth's Mitsuba plugins for the active variant (idempotent)."""
+    from .bsdf.registry import register_plugins
+
+    register_plugins()
+
+
+__all__ = [
+    "ClothError", "MapsError", "ParameterError", "PatternError",
+    "configure_llvm", "default_variant", "register", "set_default_variant", "__version__",
+]

@@ -1,0 +1,143 @@
+"""Reading and validating the ``cloth`` plugin's parameters.
+
+Errors name the parameter and the allowed range (``ParameterError``); nothing
+is clamped silently.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..errors import ParameterError
+
+#: (name, default, lowest, highest, lowest allowed itself?) of the scalar parameters.
+FLOAT_PARAMETERS = {
+    # name: (default, low, high, low_inclusive, meaning)
+    "uv_scale": (1.0, 0.0, math.inf, False, "pattern tiles per UV unit"),
+    "uv_scale_v": (0.0, 0.0, math.inf, True, "pattern tiles per UV unit along v (0: same as uv_scale)"),
+    "roughness": (0.3, 0.0, 1.0, False, "fibre SGGX roughness alpha (alpha^2 along the fibre)"),
+    "thickness": (2.0, 0.0, 1e3, False, "optical thickness T of the yarn layer"),
+    "sheen_roughness": (0.5, 0.0, 1.0, False, "roughness of the fuzz fibres"),
+    "sheen_thickness": (0.2, 0.0, 1e3, True, "optical thickness of the fuzz layer (0: no sheen)"),
+}
+
+#: Spectrum parameters (float, RGB or texture), all within [0, 1].
+SPECTRUM_PARAMETERS = {
+    "specular_albedo": (0.4, "albedo k_rs of specular fibre reflection"),
+    "specular_transmittance": (0.2, "albedo k_ts of specular fibre transmission"),
+    "diffuse_albedo": (0.4, "albedo k_rd of diffuse (multiply scattered) reflection"),
+    "diffuse_transmittance": (0.1, "albedo k_td of diffuse transmission"),
+    "sheen_color": (0.5, "albedo of the fuzz fibres"),
+}
+
+
+@dataclass
+class ClothParameters:
+    pattern: str
+    resolution: int | None
+    uv_scale: float
+    uv_scale_v: float
+    roughness: float
+    thickness: float
+    sheen_roughness: float
+    sheen_thickness: float
+    textures: dict  # name -> mi.Texture
+
+
+def _read_float(props, name):
+    default, low, high, low_inclusive, meaning = FLOAT_PARAMETERS[name]
+    if name not in props:
+        return default
+    value = props.get(name)
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ParameterError(f"cloth: parameter '{name}' ({meaning}) must be a number, got {value!r}")
+    value = float(value)
+    ok_low = value >= low if low_inclusive else value > low
+    if not (math.isfinite(value) and ok_low and value <= high):
+        bracket = "[" if low_inclusive else "("
+        raise ParameterError(
+            f"cloth: parameter '{name}' ({meaning}) must be in {bracket}{low:g}, {high:g}], got {value:g}")
+    return value
+
+
+def _constant_channels(texture) -> np.ndarray:
+    """The three channels of a texture that does not vary in space."""
+    value = np.asarray(texture.eval(dr.zeros(mi.SurfaceInteraction3f)), dtype=float).reshape(-1)
+    return value[:3] if value.size >= 3 else np.full(3, value[0])
+
+
+def texture_channel_bounds(texture) -> np.ndarray:
+    """Per-channel upper bound of a texture's values (exact when not spatially varying)."""
+    if not texture.is_spatially_varying():
+        return _constant_channels(texture)
+    try:
+        return np.full(3, float(texture.max()))
+    except RuntimeError:
+        pass
+    # Bitmaps do not implement max(): read their data.
+    for key, value in mi.traverse(texture).items():
+        if key.endswith("data"):
+            data = np.array(value)
+            return data.reshape(-1, data.shape[-1]).max(axis=0)[:3] if data.ndim >= 3 else np.full(3, data.max())
+    raise ParameterError(f"cloth: cannot bound the values of texture {texture}; use a float, RGB or bitmap")
+
+
+def _texture_min(texture) -> float:
+    if not texture.is_spatially_varying():
+        return float(_constant_channels(texture).min())
+    for key, value in mi.traverse(texture).items():
+        if key.endswith("data"):
+            return float(np.array(value).min())
+    return 0.0  # textures without data (procedural) are checked against their max only
+
+
+def read_parameters(props) -> ClothParameters:
+    """Read every ``cloth`` parameter from Mitsuba Properties, validating each."""
+    pattern = props.get("pattern", "plain")
+    if not isinstance(pattern, str) or not pattern:
+        raise ParameterError(f"cloth: parameter 'pattern' must be a pattern name or a maps directory, got {pattern!r}")
+    resolution = props.get("resolution", 0)
+    if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution < 0 or resolution > 8192:
+        raise ParameterError(f"cloth: parameter 'resolution' (texels per tile side of a built-in pattern) "
+                             f"must be an integer in [8, 8192] (0: the pattern's default), got {resolution!r}")
+    if 0 < resolution < 8:
+        raise ParameterError(f"cloth: parameter 'resolution' must be in [8, 8192] (0: default), got {resolution}")
+
+    floats = {name: _read_float(props, name) for name in FLOAT_PARAMETERS}
+    if floats["uv_scale_v"] == 0.0:
+        floats["uv_scale_v"] = floats["uv_scale"]
+
+    textures = {}
+    bounds = {}
+    for name, (default, meaning) in SPECTRUM_PARAMETERS.items():
+        try:
+            texture = props.get_texture(name, default)
+        except RuntimeError as error:  # e.g. Mitsuba refusing an RGB reflectance > 1
+            reason = str(error).strip().splitlines()[-1]
+            raise ParameterError(f"cloth: parameter '{name}' ({meaning}) must lie in [0, 1] "
+                                 f"in every channel: {reason}") from None
+        upper = texture_channel_bounds(texture)
+        lower = _texture_min(texture)
+        if lower < 0.0 or np.any(upper > 1.0) or not np.all(np.isfinite(upper)):
+            raise ParameterError(
+                f"cloth: parameter '{name}' ({meaning}) must lie in [0, 1] in every channel, "
+                f"got values in [{lower:g}, {upper.max():g}]")
+        textures[name] = texture
+        bounds[name] = upper
+
+    # Energy: single scattering returns at most max(k_rs, k_ts) (its R + T < 1), the
+    # diffuse lobes k_rd + k_td; their sum must not exceed 1 or the cloth creates light.
+    total = bounds["diffuse_albedo"] + bounds["diffuse_transmittance"] + np.maximum(
+        bounds["specular_albedo"], bounds["specular_transmittance"])
+    if np.any(total > 1.0 + 1e-6):
+        ch = int(np.argmax(total))
+        raise ParameterError(
+            "cloth: diffuse_albedo + diffuse_transmittance + max(specular_albedo, specular_transmittance) "
+            f"must be <= 1 in every channel so the cloth cannot reflect more light than it receives; "
+            f"got {total[ch]:.3g} in channel {'RGB'[ch]} (defaults: 0.4 + 0.1 + max(0.4, 0.2) = 0.9)")
+
+    return ClothParameters(pattern=pattern, resolution=resolution or None, textures=textures, **floats)

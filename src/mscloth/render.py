@@ -1,0 +1,73 @@
+"""Rendering with progress, and writing images without leaving half-written files."""
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+
+
+def progress_bar(done: int, total: int, started: float, label: str, stream=sys.stderr) -> None:
+    """One-line progress bar, redrawn in place."""
+    width = 30
+    filled = int(width * done / max(total, 1))
+    elapsed = time.perf_counter() - started
+    eta = elapsed / done * (total - done) if done else 0.0
+    stream.write(f"\r{label} [{'#' * filled}{'.' * (width - filled)}] {done}/{total} "
+                 f"{elapsed:5.1f}s elapsed, {eta:5.1f}s left")
+    if done == total:
+        stream.write("\n")
+    stream.flush()
+
+
+def render_progressive(scene, spp: int, passes: int | None = None, seed: int = 0,
+                       label: str = "render", quiet: bool = False):
+    """Render ``spp`` samples per pixel in passes (showing progress); return the mean image.
+
+    Each pass is an independent render with its own seed, so the average equals
+    one render at the full sample count in expectation.
+    """
+    if spp < 1:
+        raise ValueError(f"spp must be >= 1, got {spp}")
+    passes = passes or min(spp, 8)
+    while spp % passes:
+        passes -= 1
+    per_pass = spp // passes
+    started = time.perf_counter()
+    total = None
+    for i in range(passes):
+        img = mi.render(scene, spp=per_pass, seed=seed + i)
+        total = img if total is None else total + img
+        dr.eval(total)
+        if not quiet:
+            progress_bar(i + 1, passes, started, label)
+    return total / passes
+
+
+def _atomic_write(path: Path, write) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def write_images(image, exr_path: Path) -> tuple[Path, Path]:
+    """Write ``image`` as linear EXR and sRGB PNG beside it (same stem); atomically."""
+    exr_path = Path(exr_path)
+    png_path = exr_path.with_suffix(".png")
+    bitmap = mi.Bitmap(image)
+    _atomic_write(exr_path, lambda p: bitmap.write(p))
+    png = bitmap.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.UInt8, srgb_gamma=True)
+    _atomic_write(png_path, lambda p: png.write(p))
+    return exr_path, png_path

@@ -1,0 +1,85 @@
+"""Fibre-like SGGX microflake distribution (Heitz et al. 2015).
+
+For a fibre with unit tangent ``t`` and roughness ``alpha`` the SGGX matrix is
+
+    S = alpha^2 t t^T + (I - t t^T),
+
+i.e. the projected area is ``alpha`` along the fibre and 1 across it; flake
+normals concentrate in the plane orthogonal to ``t`` as alpha -> 0
+(our roughness convention: alpha^2 along t; see docs/decisions.md).
+
+All functions are pure and work on Dr.Jit arrays of the active variant.
+"""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+
+def quadratic_form(a, b, t, alpha):
+    """a^T S b without forming S: a.b - (1 - alpha^2)(a.t)(b.t)."""
+    return dr.dot(a, b) - (1.0 - alpha * alpha) * dr.dot(a, t) * dr.dot(b, t)
+
+
+def projected_area(w, t, alpha):
+    """sigma(w) = sqrt(w^T S w), the flakes' projected area seen from w."""
+    return dr.safe_sqrt(quadratic_form(w, w, t, alpha))
+
+
+def ndf(m, t, alpha):
+    """D(m) = |det S|^(3/2) / (pi (m^T adj(S) m)^2), the inverse-free form.
+
+    det S = alpha^2 and adj(S) = t t^T + alpha^2 (I - t t^T), so no division
+    by alpha appears. Not normalised to 1 over the sphere; what holds is
+    integral max(0, w.m) D(m) dm = sigma(w).
+    """
+    mt = dr.dot(m, t)
+    mt2 = mt * mt
+    q = mt2 + alpha * alpha * (dr.squared_norm(m) - mt2)
+    return alpha * alpha * alpha / (dr.pi * q * q)
+
+
+def sample_visible_normal(wi, t, alpha, sample):
+    """Draw a flake normal m from the visible-normal distribution of ``wi``.
+
+    Density: D_wi(m) = max(0, wi.m) D(m) / sigma(wi) (Heitz et al. 2015,
+    supplement, Alg. 'sample_VNDF'). ``sample`` is a uniform 2D point.
+    """
+    # Cosine-distributed point (u, v, w) on the hemisphere around +z.
+    r = dr.sqrt(sample.x)
+    s, c = dr.sincos(dr.two_pi * sample.y)
+    u, v = r * c, r * s
+    w = dr.safe_sqrt(1.0 - u * u - v * v)
+
+    # Orthonormal basis (wk, wj, wi) and S expressed in it.
+    wk, wj = mi.coordinate_system(wi)
+    s_kk = quadratic_form(wk, wk, t, alpha)
+    s_jj = quadratic_form(wj, wj, t, alpha)
+    s_ii = quadratic_form(wi, wi, t, alpha)
+    s_kj = quadratic_form(wk, wj, t, alpha)
+    s_ki = quadratic_form(wk, wi, t, alpha)
+    s_ji = quadratic_form(wj, wi, t, alpha)
+
+    # det S is rotation invariant: sqrt(det) = alpha.
+    sqrt_det = alpha
+    inv_sqrt_s_ii = dr.rsqrt(s_ii)
+    tmp = dr.safe_sqrt(s_jj * s_ii - s_ji * s_ji)
+    inv_tmp = dr.rcp(tmp)
+
+    mk_x = sqrt_det * inv_tmp
+    mj_x = -inv_sqrt_s_ii * (s_ki * s_ji - s_kj * s_ii) * inv_tmp
+    mj_y = inv_sqrt_s_ii * tmp
+    mi_x = inv_sqrt_s_ii * s_ki
+    mi_y = inv_sqrt_s_ii * s_ji
+    mi_z = inv_sqrt_s_ii * s_ii
+
+    mx = u * mk_x + v * mj_x + w * mi_x
+    my = v * mj_y + w * mi_y
+    mz = w * mi_z
+    m = wk * mx + wj * my + wi * mz
+    return dr.normalize(m)
+
+
+def visible_normal_pdf(wi, m, t, alpha):
+    """Density of :func:`sample_visible_normal` (solid angle of m)."""
+    return dr.maximum(dr.dot(wi, m), 0.0) * ndf(m, t, alpha) / projected_area(wi, t, alpha)

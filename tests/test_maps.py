@@ -1,0 +1,362 @@
+"""Cloth maps: container validation, save/load, woven plain-weave geometry, previews, builtins."""
+from __future__ import annotations
+
+import json
+import os
+import time
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from mscloth.errors import MapsError, ParameterError, PatternError
+from mscloth.maps.builtin import BUILTIN_PATTERNS, resolve_pattern
+from mscloth.maps.cloth_maps import ARRAY_FIELDS, ClothMaps
+from mscloth.maps.preview import write_previews
+from mscloth.maps.woven import woven_maps
+from mscloth.patterns.weaves import plain, validate_drawdown
+
+RES = 128
+
+
+@pytest.fixture(scope="module")
+def plain_maps() -> ClothMaps:
+    return woven_maps(plain(), (RES, RES), yarn_width=0.8, fibre_twist_deg=30.0,
+                      warp_colors=[[0.9, 0.1, 0.1], [0.1, 0.9, 0.1]],
+                      weft_colors=[0.2, 0.3, 0.8])
+
+
+def _arrays(maps: ClothMaps) -> dict[str, np.ndarray]:
+    return {name: np.array(getattr(maps, name)) for name in ARRAY_FIELDS}
+
+
+def _small(**override) -> dict:
+    """Valid 2x3 map arrays; override any of them."""
+    h, w = 2, 3
+    arrays = dict(
+        tangent=np.tile([0.0, 1.0, 0.0], (h, w, 1)),
+        normal=np.tile([0.0, 0.0, 1.0], (h, w, 1)),
+        height=np.zeros((h, w)),
+        gap=np.ones((h, w)),
+        yarn_id=np.zeros((h, w), dtype=np.int64),
+        albedo=np.full((h, w, 3), 0.5),
+    )
+    arrays.update(override)
+    return arrays
+
+
+# ---------------------------------------------------------------- ClothMaps validation
+def test_construct_converts_dtypes_and_is_read_only():
+    maps = ClothMaps(**_small(), meta={"generator": "test", "pair": (1, 2)})
+    assert maps.resolution == (2, 3)
+    assert maps.tangent.dtype == np.float32 and maps.gap.dtype == np.float32
+    assert maps.yarn_id.dtype == np.int32
+    assert maps.meta == {"generator": "test", "pair": [1, 2]}  # JSON form
+    with pytest.raises(ValueError):
+        maps.height[0, 0] = 1.0
+
+
+@pytest.mark.parametrize("override, words", [
+    (dict(tangent=np.zeros((4, 4))), ["tangent", "(H, W, 3)", "(4, 4)"]),
+    (dict(tangent=np.tile([0.0, 2.0, 0.0], (2, 3, 1))), ["tangent", "unit"]),
+    (dict(normal=np.tile([0.0, 0.0, -1.0], (2, 3, 1))), ["normal", "z > 0"]),
+    (dict(normal=np.zeros((3, 2, 3))), ["normal", "(2, 3, 3)"]),
+    (dict(height=np.full((2, 3), np.nan)), ["height", "finite"]),
+    (dict(height=np.zeros((2, 3), dtype=complex)), ["height", "dtype"]),
+    (dict(gap=np.full((2, 3), 0.5)), ["gap", "{0, 1}"]),
+    (dict(yarn_id=np.zeros((2, 3))), ["yarn_id", "integer"]),
+    (dict(yarn_id=np.full((2, 3), -2)), ["yarn_id", "-1"]),
+    (dict(yarn_id=np.full((2, 3), -1)), ["yarn_id", "gap == 0"]),
+    (dict(albedo=np.full((2, 3, 3), 1.5)), ["albedo", "[0, 1]"]),
+])
+def test_validation_errors_name_field(override, words):
+    with pytest.raises(MapsError) as info:
+        ClothMaps(**_small(**override))
+    for word in words:
+        assert word in str(info.value)
+
+
+def test_meta_must_be_json():
+    with pytest.raises(MapsError, match="meta"):
+        ClothMaps(**_small(), meta={"x": object()})
+
+
+# ---------------------------------------------------------------- save / load
+def test_round_trip_exact(plain_maps, tmp_path):
+    plain_maps.save(tmp_path / "m")
+    loaded = ClothMaps.load(tmp_path / "m")
+    for name in ARRAY_FIELDS:
+        a, b = getattr(plain_maps, name), getattr(loaded, name)
+        assert a.dtype == b.dtype and np.array_equal(a, b), name
+    assert loaded.meta == plain_maps.meta
+    header = json.loads((tmp_path / "m" / "maps.json").read_text())
+    assert header["shape"] == [RES, RES] and header["meta"]["generator"] == "woven"
+    assert not [p for p in (tmp_path / "m").iterdir() if p.name.endswith(".tmp")]
+
+
+def test_save_refuses_to_overwrite(plain_maps, tmp_path):
+    plain_maps.save(tmp_path)
+    before = (tmp_path / "maps.npz").read_bytes()
+    with pytest.raises(MapsError, match="overwrite"):
+        plain_maps.save(tmp_path)
+    (tmp_path / "maps.npz").unlink()  # one file existing is enough to refuse
+    (tmp_path / "maps.npz").write_bytes(b"user data")
+    with pytest.raises(MapsError, match="overwrite"):
+        plain_maps.save(tmp_path)
+    assert (tmp_path / "maps.npz").read_bytes() == b"user data"
+    plain_maps.save(tmp_path, overwrite=True)
+    assert (tmp_path / "maps.npz").read_bytes() == before
+
+
+def test_load_missing_directory(tmp_path):
+    with pytest.raises(MapsError, match="does not exist"):
+        ClothMaps.load(tmp_path / "nope")
+
+
+def test_load_missing_npz(plain_maps, tmp_path):
+    plain_maps.save(tmp_path)
+    (tmp_path / "maps.npz").unlink()
+    with pytest.raises(MapsError, match="maps.npz"):
+        ClothMaps.load(tmp_path)
+
+
+def test_load_truncated_npz(plain_maps, tmp_path):
+    plain_maps.save(tmp_path)
+    data = (tmp_path / "maps.npz").read_bytes()
+    (tmp_path / "maps.npz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(MapsError, match="maps.npz") as info:
+        ClothMaps.load(tmp_path)
+    assert "corrupt or truncated" in str(info.value)
+
+
+def test_load_npz_missing_array(plain_maps, tmp_path):
+    plain_maps.save(tmp_path)
+    arrays = _arrays(plain_maps)
+    del arrays["albedo"]
+    np.savez(tmp_path / "maps.npz", **arrays)
+    with pytest.raises(MapsError, match="'albedo'"):
+        ClothMaps.load(tmp_path)
+
+
+def test_load_bad_json(plain_maps, tmp_path):
+    plain_maps.save(tmp_path)
+    (tmp_path / "maps.json").write_text("{not json")
+    with pytest.raises(MapsError, match="maps.json"):
+        ClothMaps.load(tmp_path)
+
+
+def test_load_invalid_array_content(plain_maps, tmp_path):
+    plain_maps.save(tmp_path)
+    arrays = _arrays(plain_maps)
+    arrays["tangent"] = arrays["tangent"] * 2
+    np.savez(tmp_path / "maps.npz", **arrays)
+    with pytest.raises(MapsError, match="tangent"):
+        ClothMaps.load(tmp_path)
+
+
+# ---------------------------------------------------------------- drawdowns
+def test_plain_drawdown():
+    assert np.array_equal(plain(), [[True, False], [False, True]])
+    assert plain().dtype == bool
+
+
+@pytest.mark.parametrize("bad", [[1, 0, 1], [[]], [[1, 2], [0, 1]], [["a", "b"]],
+                                 np.zeros((2, 2, 2), bool)])
+def test_validate_drawdown_rejects(bad):
+    with pytest.raises(PatternError, match="drawdown"):
+        validate_drawdown(bad)
+
+
+def test_validate_drawdown_accepts_01():
+    assert np.array_equal(validate_drawdown([[1, 0], [0, 1]]), plain())
+
+
+# ---------------------------------------------------------------- woven geometry
+def test_unit_vectors(plain_maps):
+    for name in ("tangent", "normal"):
+        length = np.linalg.norm(getattr(plain_maps, name), axis=-1)
+        assert np.allclose(length, 1.0, atol=1e-5), name
+    assert np.all(plain_maps.normal[..., 2] > 0)
+
+
+def _wrap_step_ok(a: np.ndarray, axis: int) -> None:
+    """The step across the tile seam is no larger than the largest interior step."""
+    interior = np.abs(np.diff(a, axis=axis))
+    seam = np.abs(np.take(a, 0, axis=axis) - np.take(a, -1, axis=axis))
+    assert seam.max() <= interior.max() + 1e-6
+
+
+def test_seamless(plain_maps):
+    for axis in (0, 1):
+        _wrap_step_ok(plain_maps.height, axis)
+        _wrap_step_ok(plain_maps.tangent, axis)
+        _wrap_step_ok(plain_maps.normal, axis)
+    # Stronger: the tile is exactly one period. The maps of a 2x2 repeat of the drawdown at
+    # twice the resolution must equal the tile laid 2x2, seams included (heights halve: they
+    # are in tile widths and the big tile is two repeats wide).
+    big = woven_maps(np.tile(plain(), (2, 2)), (2 * RES, 2 * RES), yarn_width=0.8,
+                     fibre_twist_deg=30.0)
+    small = woven_maps(plain(), (RES, RES), yarn_width=0.8, fibre_twist_deg=30.0)
+    for name, scale in (("tangent", 1), ("normal", 1), ("height", 2), ("gap", 1)):
+        reps = (2, 2, 1) if getattr(small, name).ndim == 3 else (2, 2)
+        assert np.allclose(scale * getattr(big, name), np.tile(getattr(small, name), reps),
+                           atol=1e-5), name
+
+
+def test_periodic_with_resolution_not_multiple():
+    # Odd sampling: the seam must still be no worse than interior steps.
+    maps = woven_maps(plain(), (90, 70))
+    for axis in (0, 1):
+        _wrap_step_ok(maps.height, axis)
+        _wrap_step_ok(maps.tangent, axis)
+
+
+@pytest.mark.parametrize("w", [0.5, 0.8, 1.0])
+def test_gap_fraction(w):
+    maps = woven_maps(plain(), (RES, RES), yarn_width=w)
+    texels_per_crossing = RES / 2
+    expected = (1.0 - w) ** 2
+    assert abs(float((maps.gap == 0).mean()) - expected) <= 1.0 / texels_per_crossing
+    assert np.array_equal(maps.yarn_id == -1, maps.gap == 0)
+    assert np.all(maps.albedo[maps.gap == 0] == 0)
+
+
+def _centre(i: int, n: int, res: int) -> int:
+    return int((i + 0.5) / n * res)
+
+
+def test_yarn_id_at_crossings_matches_drawdown():
+    dd = np.array([[1, 1, 0], [0, 1, 1], [1, 0, 1]], bool)  # 2/1 twill
+    maps = woven_maps(dd, (96, 96))
+    n_weft, n_warp = dd.shape
+    for i in range(n_weft):
+        for j in range(n_warp):
+            r, c = _centre(i, n_weft, 96), _centre(j, n_warp, 96)
+            expected = j if dd[i, j] else n_warp + i
+            assert maps.yarn_id[r, c] == expected, (i, j)
+            # The visible yarn is the upper one: it is higher than the crossing's mean.
+            assert maps.height[r, c] > 0
+
+
+def test_plain_ids_and_tangent_directions(plain_maps):
+    dd = plain()
+    for i in range(2):
+        for j in range(2):
+            r, c = _centre(i, 2, RES), _centre(j, 2, RES)
+            t = plain_maps.tangent[r, c]
+            if dd[i, j]:
+                assert plain_maps.yarn_id[r, c] == j
+                assert abs(t[1]) > abs(t[0]) > 0.3  # along v, twisted by 30 degrees
+            else:
+                assert plain_maps.yarn_id[r, c] == 2 + i
+                assert abs(t[0]) > abs(t[1]) > 0.3  # along u
+            assert abs(t[2]) < 0.1  # top of a crossing: flat
+
+
+def test_twist_handedness_and_zero_twist():
+    r, c = _centre(0, 2, RES), _centre(0, 2, RES)  # warp over weft here
+    s_twist = woven_maps(plain(), RES, fibre_twist_deg=30.0).tangent[r, c]
+    z_twist = woven_maps(plain(), RES, fibre_twist_deg=-30.0).tangent[r, c]
+    none = woven_maps(plain(), RES, fibre_twist_deg=0.0).tangent[r, c]
+    # Warp runs along +v; S twist tilts the top fibres toward -u, Z toward +u.
+    assert s_twist[0] < -0.4 and z_twist[0] > 0.4
+    assert abs(none[0]) < 1e-3 and none[1] > 0.99
+
+
+def test_warp_dips_under_weft():
+    # Along warp 0 (column centre), height at its over-crossing exceeds the height of the
+    # (weft-covered) under-crossing region, and the axis slopes down between them.
+    maps = woven_maps(plain(), RES, fibre_twist_deg=0.0)
+    c = _centre(0, 2, RES)
+    r_over, r_mid = _centre(0, 2, RES), RES // 2 - 1
+    assert maps.yarn_id[r_mid, c] == 0
+    assert maps.height[r_over, c] > maps.height[r_mid, c]
+    assert maps.tangent[r_mid, c, 2] < -0.1  # descending toward the under-crossing at +v
+
+
+def test_albedo_per_yarn(plain_maps):
+    ids = plain_maps.yarn_id
+    assert np.allclose(plain_maps.albedo[ids == 0], [0.9, 0.1, 0.1])
+    assert np.allclose(plain_maps.albedo[ids == 1], [0.1, 0.9, 0.1])
+    assert np.allclose(plain_maps.albedo[ids >= 2], [0.2, 0.3, 0.8])
+
+
+@pytest.mark.parametrize("kwargs, words", [
+    (dict(yarn_width=1.5), "yarn_width must be in (0, 1], got 1.5"),
+    (dict(yarn_width=0.0), "yarn_width must be in (0, 1]"),
+    (dict(yarn_height=-1.0), "yarn_height must be in (0, 2]"),
+    (dict(yarn_height=float("nan")), "yarn_height"),
+    (dict(fibre_twist_deg=120.0), "fibre_twist_deg must be in [-90, 90]"),
+    (dict(fibre_twist_deg="30"), "fibre_twist_deg"),
+    (dict(resolution=3), "resolution H must be in [4,"),
+    (dict(resolution=(64, 64, 3)), "resolution must be"),
+    (dict(warp_colors=[[1, 0, 0]]), "warp_colors"),
+    (dict(weft_colors=[2.0, 0, 0]), "weft_colors values must be in [0, 1]"),
+])
+def test_parameter_errors(kwargs, words):
+    with pytest.raises(ParameterError) as info:
+        woven_maps(plain(), **kwargs)
+    assert words in str(info.value)
+
+
+def test_large_tile_generates():
+    # Speed is measured in `make bench`, not asserted here (shared, noisy machines).
+    maps = woven_maps(plain(), 1024)
+    assert maps.resolution == (1024, 1024)
+    assert np.all(np.isfinite(maps.tangent))
+
+
+# ---------------------------------------------------------------- previews
+def test_previews(plain_maps, tmp_path):
+    paths = write_previews(plain_maps, tmp_path / "prev")
+    names = {p.name for p in paths}
+    assert names == {"tangent.png", "normal.png", "height.png", "gap.png", "yarn_id.png",
+                     "albedo.png", "contact_sheet.png"}
+    for p in paths:
+        with Image.open(p) as img:
+            if p.name != "contact_sheet.png":
+                assert img.size == (RES, RES)
+    with Image.open(tmp_path / "prev" / "yarn_id.png") as img:
+        ids = np.asarray(img.convert("RGB"))
+    colours = {tuple(ids[r, c]) for r, c in [(32, 32), (32, 96), (96, 32), (96, 96)]}
+    assert len(colours) == 4 and (0, 0, 0) not in colours
+    assert tuple(ids[0, 0]) == (0, 0, 0)  # tile corner is a gap
+    with Image.open(tmp_path / "prev" / "contact_sheet.png") as img:
+        assert img.width > 6 * RES and img.height > RES
+    with pytest.raises(MapsError, match="overwrite"):
+        write_previews(plain_maps, tmp_path / "prev")
+    write_previews(plain_maps, tmp_path / "prev", overwrite=True)
+
+
+# ---------------------------------------------------------------- builtins
+def test_builtin_plain_and_cache():
+    assert "plain" in BUILTIN_PATTERNS
+    a = resolve_pattern("plain")
+    assert a.resolution == (128, 128) and a.meta["yarn_width"] == 0.8
+    assert resolve_pattern("plain") is a
+    assert resolve_pattern("plain", 64).resolution == (64, 64)
+
+
+def test_resolve_directory(plain_maps, tmp_path):
+    plain_maps.save(tmp_path / "m")
+    loaded = resolve_pattern(str(tmp_path / "m"))
+    assert np.array_equal(loaded.tangent, plain_maps.tangent)
+    assert resolve_pattern(str(tmp_path / "m")) is loaded
+    with pytest.raises(PatternError, match="resolution"):
+        resolve_pattern(str(tmp_path / "m"), RES // 2)
+
+
+def test_resolve_directory_reloads_after_change(plain_maps, tmp_path):
+    plain_maps.save(tmp_path)
+    first = resolve_pattern(str(tmp_path))
+    other = woven_maps(plain(), RES, yarn_width=0.5)
+    other.save(tmp_path, overwrite=True)
+    os.utime(tmp_path / "maps.npz", ns=(time.time_ns(), time.time_ns() + 10**9))
+    second = resolve_pattern(str(tmp_path))
+    assert second is not first and second.meta["yarn_width"] == 0.5
+
+
+def test_resolve_unknown():
+    with pytest.raises(PatternError) as info:
+        resolve_pattern("foo")
+    assert "unknown pattern 'foo'" in str(info.value) and "plain" in str(info.value)

@@ -1,0 +1,90 @@
+"""Package set-up: variant choice, registration, the demo scene, the command line."""
+import os
+import subprocess
+import sys
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import mscloth
+from mscloth import variant
+
+
+def test_default_variant_is_usable():
+    chosen = mscloth.default_variant()
+    assert chosen in mi.variants()
+    # This machine (and CI) has Debian's libllvm19 but no GPU.
+    if not dr.has_backend(dr.JitBackend.CUDA):
+        assert chosen == "llvm_ad_rgb"
+
+
+def test_find_libllvm_prefers_19_and_refuses_old(monkeypatch, tmp_path):
+    for name in ["libLLVM-14.so.1", "libLLVM-15.so.1", "libLLVM.so.18.1", "libLLVM.so.19.1"]:
+        (tmp_path / name).write_bytes(b"")
+    monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)
+    monkeypatch.setattr(variant, "_LLVM_GLOBS", (str(tmp_path / "libLLVM*"),))
+    assert variant.find_libllvm() == str(tmp_path / "libLLVM.so.19.1")
+    (tmp_path / "libLLVM.so.19.1").unlink()
+    assert variant.find_libllvm() == str(tmp_path / "libLLVM.so.18.1")
+    (tmp_path / "libLLVM.so.18.1").unlink()
+    assert variant.find_libllvm() is None  # 14 and 15 are not usable
+
+
+def test_register_is_idempotent():
+    mscloth.register()
+    mscloth.register()
+    assert "ClothBSDF" in str(mi.load_dict({"type": "cloth"}))
+
+
+def test_scalar_variant_agrees_with_llvm():
+    """The plugin also runs in scalar_rgb (unit tests only: it is slow there)."""
+    wi, wo, uv = [0.3, -0.2, 0.93], [-0.4, 0.1, 0.91], [0.26, 0.13]
+
+    def value():
+        mscloth.register()
+        bsdf = mi.load_dict({"type": "cloth"})
+        si = dr.zeros(mi.SurfaceInteraction3f)
+        si.wi = dr.normalize(mi.Vector3f(wi))
+        si.uv = mi.Point2f(uv)
+        v = bsdf.eval(mi.BSDFContext(), si, dr.normalize(mi.Vector3f(wo)))
+        return np.asarray(v, dtype=float).reshape(-1)[:3]
+
+    llvm = value()
+    try:
+        mi.set_variant("scalar_rgb")
+        scalar = value()
+    finally:
+        mi.set_variant("llvm_ad_rgb")
+    assert np.all(llvm > 0)
+    np.testing.assert_allclose(scalar, llvm, rtol=1e-4)
+
+
+def test_demo_scene_renders_finite_cloth():
+    from mscloth.loading import load_dict
+    from mscloth.scenes.demo import demo_scene
+
+    mscloth.register()
+    scene = load_dict(demo_scene(resolution=32))
+    image = np.array(mi.render(scene, spp=4))
+    assert image.shape == (32, 32, 3)
+    assert np.all(np.isfinite(image))
+    assert image.mean() > 0.05
+
+
+def test_cli_demo_writes_images(tmp_path):
+    out = tmp_path / "out"
+    result = subprocess.run([sys.executable, "-m", "mscloth", "demo", "--out", str(out), "--res", "32", "--spp", "4"],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert (out / "demo.exr").stat().st_size > 0 and (out / "demo.png").stat().st_size > 0
+    assert "demo.png" in result.stdout and " s " in result.stdout
+
+
+def test_cli_rejects_bad_arguments(tmp_path):
+    result = subprocess.run([sys.executable, "-m", "mscloth", "demo", "--spp", "0", "--out", str(tmp_path)],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode != 0
+    assert "--spp" in result.stderr and "[1, 65536]" in result.stderr
+    assert not any(tmp_path.iterdir())
