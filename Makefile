@@ -13,7 +13,7 @@ test: setup
 	$(PY) -m pytest -q
 
 bench: setup
-	$(PY) -m mscloth.bench --out bench/RESULTS.md
+	$(PY) -m mscloth.benchmark --out bench/RESULTS.md
 
 clean:
 	rm -rf out .pytest_cache

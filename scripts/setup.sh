@@ -5,7 +5,11 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 have_llvm19() {
-    ls /usr/lib/*/libLLVM.so.19* /usr/lib/llvm-19/lib/libLLVM.so* >/dev/null 2>&1
+    local f
+    for f in /usr/lib/*/libLLVM.so.19* /usr/lib/*/libLLVM-19.so* /usr/lib/llvm-19/lib/libLLVM*.so*; do
+        [ -e "$f" ] && return 0
+    done
+    return 1
 }
 
 apt_install() {
