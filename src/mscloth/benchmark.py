@@ -6,7 +6,6 @@ scene differ only in the BSDF on its shapes.
 from __future__ import annotations
 
 import argparse
-import copy
 import os
 import platform
 import sys
@@ -31,7 +30,6 @@ def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple[str, 
     from .loading import load_dict
     from .scenes.demo import demo_scene
 
-    base = demo_scene(resolution=resolution)
     contenders = {
         "cloth (mscloth, fibre-level)": None,
         "principled (Mitsuba)": {"type": "principled", "base_color": {"type": "rgb", "value": [0.4, 0.1, 0.1]},
@@ -41,7 +39,7 @@ def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple[str, 
     }
     rows = []
     for name, bsdf in contenders.items():
-        scene_dict = copy.deepcopy(base)
+        scene_dict = demo_scene(resolution=resolution)  # fresh dict: transforms do not deepcopy
         if bsdf is not None:
             for shape in ("plane", "ball"):
                 scene_dict[shape]["bsdf"] = bsdf
