@@ -1,14 +1,14 @@
 """Rendering with progress, and writing images without leaving half-written files."""
 from __future__ import annotations
 
-import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import drjit as dr
 import mitsuba as mi
+
+from .atomic import atomic_path
 
 
 def progress_bar(done: int, total: int, started: float, label: str, stream=sys.stderr) -> None:
@@ -48,26 +48,14 @@ def render_progressive(scene, spp: int, passes: int | None = None, seed: int = 0
     return total / passes
 
 
-def _atomic_write(path: Path, write) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def write_images(image, exr_path: Path) -> tuple[Path, Path]:
     """Write ``image`` as linear EXR and sRGB PNG beside it (same stem); atomically."""
     exr_path = Path(exr_path)
     png_path = exr_path.with_suffix(".png")
     bitmap = mi.Bitmap(image)
-    _atomic_write(exr_path, lambda p: bitmap.write(p))
+    with atomic_path(exr_path) as tmp:
+        bitmap.write(tmp)
     png = bitmap.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.UInt8, srgb_gamma=True)
-    _atomic_write(png_path, lambda p: png.write(p))
+    with atomic_path(png_path) as tmp:
+        png.write(tmp)
     return exr_path, png_path

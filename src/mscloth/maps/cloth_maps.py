@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from ..atomic import atomic_write
 from ..errors import MapsError
 
 FORMAT_VERSION = 1
@@ -175,8 +175,8 @@ class ClothMaps:
         header = {"format_version": FORMAT_VERSION, "shape": list(self.resolution),
                   "arrays": list(ARRAY_FIELDS), "meta": self.meta}
         try:
-            _atomic_write(targets[0], lambda f: np.savez(f, **arrays))
-            _atomic_write(targets[1],
+            atomic_write(targets[0], lambda f: np.savez(f, **arrays))
+            atomic_write(targets[1],
                           lambda f: f.write((json.dumps(header, indent=2) + "\n").encode()))
         except OSError as exc:
             raise MapsError(f"cannot write cloth maps to {directory}: {exc}") from None
@@ -225,24 +225,6 @@ class ClothMaps:
             raise MapsError(f"{json_path}: shape {shape} does not match the arrays in "
                             f"{npz_path.name}, which are {list(maps.resolution)}")
         return maps
-
-
-def _atomic_write(path: Path, write) -> None:
-    """Call ``write(binary_file)`` on a temp file beside ``path``, then move it into place."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        # Never leave temp droppings behind, whatever went wrong.
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
 
 
 __all__ = ["ClothMaps", "FORMAT_VERSION", "NPZ_NAME", "JSON_NAME", "ARRAY_FIELDS"]

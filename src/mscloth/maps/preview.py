@@ -5,12 +5,12 @@ Image row r is texel row r, so +v points down the image and +u to the right.
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from ..atomic import atomic_write
 from ..errors import MapsError
 from .cloth_maps import ClothMaps
 
@@ -99,24 +99,10 @@ def write_previews(maps: ClothMaps, directory: str | os.PathLike, *,
     try:
         directory.mkdir(parents=True, exist_ok=True)
         for path, img in zip(paths, images_out):
-            _save_png_atomic(img, path)
+            atomic_write(path, lambda f, img=img: img.save(f, format="PNG"))
     except OSError as exc:
         raise MapsError(f"cannot write previews to {directory}: {exc}") from None
     return paths
-
-
-def _save_png_atomic(img: Image.Image, path: Path) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            img.save(f, format="PNG")
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
 
 
 __all__ = ["write_previews", "preview_images", "contact_sheet", "PREVIEW_NAMES"]
