@@ -332,7 +332,7 @@ def test_previews(plain_maps, tmp_path):
 def test_builtin_plain_and_cache():
     assert "plain" in BUILTIN_PATTERNS
     a = resolve_pattern("plain")
-    assert a.resolution == (128, 128) and a.meta["yarn_width"] == 0.8
+    assert a.resolution == (128, 128) and a.meta["tile_size_mm"] == [1.0, 1.0]
     assert resolve_pattern("plain") is a
     assert resolve_pattern("plain", 64).resolution == (64, 64)
 

@@ -56,6 +56,36 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def cmd_maps(args) -> int:
+    from .maps.builtin import default_resolution
+    from .maps.generate import generate_maps
+    from .maps.preview import write_previews
+    from .patterns.named import named_pattern
+
+    params = {name: value for name, value in (
+        ("yarn_width", args.yarn_width), ("gap_fraction", args.gap_fraction),
+        ("yarn_height", args.yarn_height), ("fibre_twist_deg", args.twist),
+        ("ply_count", args.plies), ("ply_twist_deg", args.ply_twist)) if value is not None}
+    pattern = named_pattern(args.pattern)
+    resolution = args.res or default_resolution(pattern)
+    out = Path(args.out)
+    if not args.force:
+        existing = [p for p in (out / "maps.npz", out / "maps.json", out / "contact_sheet.png") if p.exists()]
+        if existing:
+            raise ClothError(f"{existing[0]} exists; pass --force to overwrite")
+    started = time.perf_counter()
+    print(f"mscloth maps: {args.pattern} at {resolution} texels along u ...", flush=True)
+    maps = generate_maps(pattern, resolution, **params)
+    generated = time.perf_counter() - started
+    maps.save(out, overwrite=args.force)
+    previews = write_previews(maps, out, overwrite=args.force)
+    h, w = maps.resolution
+    print(f"generated {w}x{h} maps in {generated:.2f} s; gap fraction {1 - maps.gap.mean():.3f}")
+    print(f"wrote {out / 'maps.npz'}, {out / 'maps.json'} and {len(previews)} previews "
+          f"(contact sheet: {out / 'contact_sheet.png'})")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mscloth", description="Multi-scale cloth appearance for Mitsuba 3.")
     parser.add_argument("--version", action="version", version=f"mscloth {__version__}")
@@ -67,6 +97,20 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--res", type=_positive_int(16, 8192), default=512, help="image width and height (default 512)")
     demo.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
     demo.set_defaults(func=cmd_demo)
+
+    maps = sub.add_parser("maps", help="generate the fibre-level maps of a pattern (weave, WIF draft, knit)")
+    maps.add_argument("pattern", help="pattern name (plain, twill-2-1-S, satin-8-3, basket-2, jersey, rib-2-2) or a .wif file")
+    maps.add_argument("--res", type=_positive_int(8, 16384), default=None,
+                      help="texels along u (default: 64 per thread, in [64, 1024])")
+    maps.add_argument("--out", required=True, help="output directory")
+    maps.add_argument("--force", action="store_true", help="overwrite maps already in --out")
+    maps.add_argument("--yarn-width", type=float, default=None, help="yarn width / thread spacing, (0, 1]")
+    maps.add_argument("--gap-fraction", type=float, default=None, help="fraction of the tile that is holes, [0, 1)")
+    maps.add_argument("--yarn-height", type=float, default=None, help="crimp: centreline undulation / yarn width")
+    maps.add_argument("--twist", type=float, default=None, help="fibre twist angle in degrees (S > 0, Z < 0)")
+    maps.add_argument("--plies", type=int, default=None, help="plies per yarn (1-8)")
+    maps.add_argument("--ply-twist", type=float, default=None, help="ply twist angle in degrees, (0, 90)")
+    maps.set_defaults(func=cmd_maps)
     return parser
 
 

@@ -43,12 +43,13 @@ back side sees the same maps mirrored through the surface.
    * - pattern
      - string
      - ``plain``
-     - Cloth maps: a built-in pattern name (``plain``) or a directory written by
-       ``ClothMaps.save`` (tangent, normal, height, gap, yarn id, albedo).
+     - Cloth maps: a pattern name (``plain``, ``twill-2-1``, ``satin-8-3``,
+       ``basket-2``, ``jersey``, ``rib-2-2``...), a ``.wif`` draft file, or a
+       directory written by ``ClothMaps.save`` / ``mscloth maps``.
    * - resolution
      - integer
      - 0
-     - Texels per tile side when generating a built-in pattern (0: its default).
+     - Texels along u when generating a pattern (0: 64 per thread, in [64, 1024]).
    * - uv_scale
      - float
      - 1.0
@@ -57,8 +58,9 @@ back side sees the same maps mirrored through the surface.
    * - uv_scale_v
      - float
      - 0
-     - Pattern tiles per UV unit along v (0: same as ``uv_scale``); e.g. a
-       Mitsuba ``sphere`` needs uv_scale_v = uv_scale / 2 for square tiles.
+     - Pattern tiles per UV unit along v (0: ``uv_scale`` times the tile's
+       width / height, so a square UV unit shows the weave at its true aspect); e.g.
+       a Mitsuba ``sphere`` (u spans twice the length of v) wants half of that.
    * - roughness
      - float
      - 0.3
@@ -136,7 +138,9 @@ def make_cloth_class():
             self.pattern = p.pattern
             self.maps = resolve_pattern(p.pattern, p.resolution)
             self.uv_scale = mi.Float(p.uv_scale)
-            self.uv_scale_v = mi.Float(p.uv_scale_v)
+            # Square UV units see the tile at its physical aspect unless told otherwise.
+            width_mm, height_mm = self.maps.meta.get("tile_size_mm", (1.0, 1.0))
+            self.uv_scale_v = mi.Float(p.uv_scale_v or p.uv_scale * width_mm / height_mm)
             self.roughness = mi.Float(p.roughness)
             self.thickness = mi.Float(p.thickness)
             self.sheen_roughness = mi.Float(p.sheen_roughness)

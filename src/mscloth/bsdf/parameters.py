@@ -18,7 +18,7 @@ from ..errors import ParameterError
 FLOAT_PARAMETERS = {
     # name: (default, low, high, low_inclusive, meaning)
     "uv_scale": (1.0, 0.0, math.inf, False, "pattern tiles per UV unit"),
-    "uv_scale_v": (0.0, 0.0, math.inf, True, "pattern tiles per UV unit along v (0: same as uv_scale)"),
+    "uv_scale_v": (0.0, 0.0, math.inf, True, "pattern tiles per UV unit along v (0: from uv_scale and the tile's aspect)"),
     "roughness": (0.3, 0.0, 1.0, False, "fibre SGGX roughness alpha (alpha^2 along the fibre)"),
     "thickness": (2.0, 0.0, 1e3, False, "optical thickness T of the yarn layer"),
     "sheen_roughness": (0.5, 0.0, 1.0, False, "roughness of the fuzz fibres"),
@@ -108,8 +108,6 @@ def read_parameters(props) -> ClothParameters:
         raise ParameterError(f"cloth: parameter 'resolution' must be in [8, 8192] (0: default), got {resolution}")
 
     floats = {name: _read_float(props, name) for name in FLOAT_PARAMETERS}
-    if floats["uv_scale_v"] == 0.0:
-        floats["uv_scale_v"] = floats["uv_scale"]
 
     textures = {}
     bounds = {}

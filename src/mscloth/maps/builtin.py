@@ -1,95 +1,98 @@
-"""Built-in cloth patterns by name, and `resolve_pattern` (name or maps directory -> ClothMaps).
+"""`resolve_pattern`: what the ``cloth`` BSDF's ``pattern`` names -> ClothMaps.
 
-Results are cached in memory: builtins per (name, resolution), directories per (path, file
-modification times), so editing a maps directory on disk is picked up. Cached `ClothMaps`
-have read-only arrays, so sharing them is safe.
+A pattern is a name (``plain``, ``twill-2-1``, ``satin-8-3``, ``jersey``, ``rib-2-2``...),
+a ``.wif`` file, or a directory written by ``ClothMaps.save``. Results are cached in
+memory: names per (name, resolution), files and directories per (path, modification
+times), so editing them on disk is picked up. Cached ClothMaps have read-only arrays, so
+sharing them is safe.
 """
 from __future__ import annotations
 
 import functools
 import os
 from pathlib import Path
-from typing import Callable
 
 from ..errors import ParameterError, PatternError
-from ..patterns import weaves
+from ..patterns.named import NAMED, is_wif_path, named_pattern, pattern_names
 from .cloth_maps import JSON_NAME, NPZ_NAME, ClothMaps
-from .woven import woven_maps
+from .generate import generate_maps
 
-DEFAULT_RESOLUTION = 128
+#: Default sampling of generated patterns: texels per thread (or stitch) along u, within
+#: [MIN, MAX] texels per tile side.
+DEFAULT_TEXELS_PER_THREAD = 64
+MIN_DEFAULT_RESOLUTION, MAX_DEFAULT_RESOLUTION = 64, 1024
 _CACHE_SIZE = 8  # a 1024^2 tile is ~50 MB; keep the cache bounded
 
-
-def _plain(resolution: int | tuple[int, int] | None = None) -> ClothMaps:
-    """Plain weave, yarn_width 0.8, default 128x128."""
-    return woven_maps(weaves.plain(), DEFAULT_RESOLUTION if resolution is None else resolution,
-                      yarn_width=0.8)
+#: Pattern names accepted without arguments (each also takes arguments, see NAMED).
+BUILTIN_PATTERNS = tuple(NAMED)
 
 
-BUILTIN_PATTERNS: dict[str, Callable[..., ClothMaps]] = {
-    "plain": _plain,
-}
+def default_resolution(pattern) -> int:
+    """Texels along u for a generated pattern when the caller gives none."""
+    columns = getattr(pattern, "n_warp", None) or getattr(pattern, "n_wales", None) or 2
+    return int(min(MAX_DEFAULT_RESOLUTION, max(MIN_DEFAULT_RESOLUTION, DEFAULT_TEXELS_PER_THREAD * columns)))
 
 
-def _resolution_key(resolution) -> int | tuple[int, int] | None:
-    """Hashable form of a resolution (lists become tuples); validation is left to woven_maps."""
-    if isinstance(resolution, list):
-        return tuple(resolution)
-    return resolution
+def _resolution_key(resolution):
+    """Hashable form of a resolution (lists become tuples)."""
+    return tuple(resolution) if isinstance(resolution, list) else resolution
 
 
 @functools.lru_cache(maxsize=_CACHE_SIZE)
-def _builtin(name: str, resolution) -> ClothMaps:
-    return BUILTIN_PATTERNS[name](resolution)
+def _generated(spec: str, resolution, stamp: int) -> ClothMaps:
+    # ``stamp`` (a WIF file's mtime, 0 for names) is only part of the cache key.
+    pattern = named_pattern(spec)
+    return generate_maps(pattern, default_resolution(pattern) if resolution is None else resolution)
 
 
 @functools.lru_cache(maxsize=_CACHE_SIZE)
 def _load_dir(path: str, stamp: tuple[int, int]) -> ClothMaps:
-    # ``stamp`` (file mtimes) is only part of the cache key.
     return ClothMaps.load(path)
 
 
 def resolve_pattern(spec: str | os.PathLike, resolution: int | tuple[int, int] | None = None
                     ) -> ClothMaps:
-    """Maps for a builtin pattern name, or for a directory written by `ClothMaps.save`.
+    """Maps for a pattern name, a ``.wif`` file or a maps directory.
 
-    A builtin name wins over a same-named directory (write ``./plain`` for the directory).
-    ``resolution`` (int or (H, W)) applies to builtins; for a directory it must be None or
-    match the stored maps, since silently returning another size would surprise the caller.
+    A pattern name wins over a same-named directory (write ``./plain`` for the directory).
+    ``resolution`` (int: texels along u, or (H, W)) applies to generated patterns; for a
+    directory it must be None or match the stored maps.
     """
     if not isinstance(spec, (str, os.PathLike)):
-        raise PatternError(f"pattern must be a builtin name or a maps directory path, "
+        raise PatternError(f"pattern must be a pattern name, a .wif file or a maps directory, "
                            f"got {spec!r}")
     text = os.fspath(spec)
-    if isinstance(spec, str) and text in BUILTIN_PATTERNS:
-        try:
-            return _builtin(text, _resolution_key(resolution))
-        except TypeError:  # unhashable resolution: let the generator report it
-            return BUILTIN_PATTERNS[text](resolution)
-
+    resolution = _resolution_key(resolution)
     path = Path(text)
-    if text and path.is_dir():
+    if is_wif_path(text):
+        if not path.is_file():
+            raise PatternError(f"WIF file {text!r} does not exist")
         resolved = path.resolve()
-        stamp = tuple(_mtime_ns(resolved / name) for name in (NPZ_NAME, JSON_NAME))
-        maps = _load_dir(str(resolved), stamp)
-        if resolution is not None:
-            wanted = _as_pair(resolution)
-            if wanted != maps.resolution:
-                raise PatternError(f"maps directory {text!r} has resolution {maps.resolution}, "
-                                   f"but resolution {resolution!r} was requested; omit "
-                                   "resolution or regenerate the maps")
-        return maps
+        return _generated(str(resolved), resolution, _mtime_ns(resolved))
+    if text and path.is_dir() and text.split("-")[0].lower() not in NAMED:
+        return _from_directory(text, path, resolution)
+    if text.split("-")[0].lower() in NAMED:
+        return _generated(text, resolution, 0)
+    raise PatternError(f"unknown pattern {text!r}: expected one of {pattern_names()}, "
+                       "a .wif file or a maps directory")
 
-    names = ", ".join(sorted(BUILTIN_PATTERNS))
-    raise PatternError(f"unknown pattern {text!r}: expected one of {names}, or a maps "
-                       "directory")
+
+def _from_directory(text: str, path: Path, resolution) -> ClothMaps:
+    resolved = path.resolve()
+    stamp = tuple(_mtime_ns(resolved / name) for name in (NPZ_NAME, JSON_NAME))
+    maps = _load_dir(str(resolved), stamp)
+    if resolution is not None and _as_pair(resolution) != maps.resolution:
+        raise PatternError(f"maps directory {text!r} has resolution {maps.resolution}, "
+                           f"but resolution {resolution!r} was requested; omit "
+                           "resolution or regenerate the maps")
+    return maps
 
 
 def _mtime_ns(path: Path) -> int:
     try:
         return path.stat().st_mtime_ns
     except OSError:
-        return -1  # missing file: ClothMaps.load reports it
+        return -1  # missing file: the loader reports it
 
 
 def _as_pair(resolution) -> tuple[int, int]:
@@ -103,8 +106,9 @@ def _as_pair(resolution) -> tuple[int, int]:
 
 def clear_cache() -> None:
     """Forget every cached pattern (e.g. to free memory)."""
-    _builtin.cache_clear()
+    _generated.cache_clear()
     _load_dir.cache_clear()
 
 
-__all__ = ["BUILTIN_PATTERNS", "DEFAULT_RESOLUTION", "resolve_pattern", "clear_cache"]
+__all__ = ["BUILTIN_PATTERNS", "DEFAULT_TEXELS_PER_THREAD", "clear_cache", "default_resolution",
+           "resolve_pattern"]

@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ParameterError
+from ..patterns.draft import Draft
 from ..patterns.weaves import validate_drawdown
 from .cloth_maps import ClothMaps
 
@@ -96,30 +97,6 @@ def _colors(name: str, colors: Any, count: int) -> np.ndarray:
     return np.array(arr)
 
 
-def _band(pos: np.ndarray, n: int, half_width: float) -> tuple[np.ndarray, np.ndarray]:
-    """Thread index and across-offset s (offset / half-width) of positions in thread units."""
-    index = np.floor(pos)
-    s = (pos - index - 0.5) / half_width
-    return index.astype(np.int64) % n, s
-
-
-def _crossing_curve(pos: np.ndarray, n: int) -> tuple[np.ndarray, ...]:
-    """Neighbouring crossing indices, cosine weight and its derivative along a yarn.
-
-    ``pos`` is the position along the yarn in units of the crossing spacing (tile coordinate
-    times ``n``). Crossing k is centred at pos = k + 0.5; the weight goes 0 -> 1 from crossing
-    k0 to k1 = k0 + 1 (indices wrapped, which is what makes the tile periodic).
-    """
-    f = pos - 0.5
-    k = np.floor(f)
-    t = f - k
-    k0 = k.astype(np.int64) % n
-    weight = 0.5 - 0.5 * np.cos(np.pi * t)
-    # d(weight)/d(tile coordinate) = d(weight)/dt * n.
-    dweight = 0.5 * np.pi * np.sin(np.pi * t) * n
-    return k0, (k0 + 1) % n, weight, dweight
-
-
 def _twisted_tangent(along: np.ndarray, across: np.ndarray, slope: np.ndarray, s: np.ndarray,
                      psi: float) -> tuple[np.ndarray, np.ndarray]:
     """(twisted fibre tangent, yarn axis), both (H, W, 3) unit, see module docstring."""
@@ -143,62 +120,160 @@ def _height_normal(height: np.ndarray) -> np.ndarray:
     return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
 
-def woven_maps(drawdown: Any, resolution: int | tuple[int, int] = (128, 128), *,
-               yarn_width: float = 0.8, yarn_height: float = 0.35,
-               fibre_twist_deg: float = 30.0, warp_colors: Any = None,
-               weft_colors: Any = None) -> ClothMaps:
+def srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    """The sRGB transfer function, inverted: display colours -> linear albedo."""
+    c = np.asarray(c, dtype=np.float64)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def _as_draft(pattern: Any) -> Draft:
+    return pattern if isinstance(pattern, Draft) else Draft(validate_drawdown(pattern))
+
+
+def _tile_resolution(resolution: Any, draft: Draft) -> tuple[int, int]:
+    """An int is the width in texels (the height follows the tile's aspect); (H, W) is exact."""
+    width_mm, height_mm = draft.size_mm
+    if isinstance(resolution, Integral) and not isinstance(resolution, bool):
+        w = int(resolution)
+        h = max(1, int(round(w * height_mm / width_mm)))
+        resolution = (h, w)
+    return _resolution(resolution, draft.n_weft, draft.n_warp)
+
+
+def _threads(centres_of: np.ndarray, spacing: np.ndarray, pos: np.ndarray):
+    """Thread index and signed offset from its centre (mm) of positions ``pos`` (mm)."""
+    edges = np.cumsum(spacing)
+    index = np.searchsorted(edges, pos, side="right")
+    index = np.minimum(index, len(spacing) - 1)
+    return index, pos - centres_of[index]
+
+
+def _crossings(centres: np.ndarray, period: float, pos: np.ndarray):
+    """Neighbouring crossing centres k0 <= pos < k1 (periodic) along a yarn, the cosine
+    weight w(pos) going 0 -> 1 from k0 to k1 (zero slope at both) and dw/dpos (per mm)."""
+    n = len(centres)
+    ext = np.concatenate([[centres[-1] - period], centres, [centres[0] + period]])
+    idx = np.clip(np.searchsorted(ext, pos, side="right") - 1, 0, n)
+    start, stop = ext[idx], ext[idx + 1]
+    t = (pos - start) / (stop - start)
+    k0 = (idx - 1) % n
+    k1 = idx % n
+    weight = 0.5 - 0.5 * np.cos(np.pi * t)
+    dweight = 0.5 * np.pi * np.sin(np.pi * t) / (stop - start)
+    return k0, k1, weight, dweight
+
+
+def _ply_tangent(axis: np.ndarray, n_y: np.ndarray, along_mm: np.ndarray, across_mm: np.ndarray,
+                 side: float, diameter: np.ndarray, length_mm: float, ply_count: int,
+                 beta: float, psi: float) -> tuple[np.ndarray, np.ndarray]:
+    """Fibre tangent and relief of a plied yarn: ``ply_count`` plies wind around the axis at
+    ``beta``; their boundaries are stripes along the ply axis, and inside a ply the fibres
+    twist the other way by ``psi`` about the ply's own surface normal. Returns (t, q) with q
+    in [-1, 1] the position across the ply, for the relief."""
+    ply_axis = math.cos(beta) * axis + math.sin(beta) * np.cross(n_y, axis)
+    ply_axis /= np.linalg.norm(ply_axis, axis=-1, keepdims=True)
+    # Stripes are invariant along the ply axis; one ply per pitch / ply_count along the
+    # yarn, rounded so a whole number of stripes fits the tile (seamless).
+    pitch = np.pi * diameter / (ply_count * math.tan(beta))
+    periods = np.maximum(1.0, np.round(length_mm / pitch))
+    stripe = length_mm / periods
+    phase = (along_mm - side * across_mm / math.tan(beta)) / stripe
+    q = 2.0 * (phase - np.floor(phase)) - 1.0
+    across_ply = np.cross(n_y, ply_axis)
+    n_p = q[..., None] * across_ply + np.sqrt(1.0 - q * q)[..., None] * n_y
+    n_p /= np.linalg.norm(n_p, axis=-1, keepdims=True)
+    t = math.cos(psi) * ply_axis - math.sin(psi) * np.cross(n_p, ply_axis)
+    return t / np.linalg.norm(t, axis=-1, keepdims=True), q
+
+
+def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
+               yarn_width: float | None = None, gap_fraction: float | None = None,
+               yarn_height: float = 0.35, profile_exponent: float = 2.0,
+               fibre_twist_deg: float = 30.0, ply_count: int = 1, ply_twist_deg: float = 30.0,
+               warp_colors: Any = None, weft_colors: Any = None) -> ClothMaps:
     """Build the maps of one seamless tile of a woven fabric (geometry: module docstring).
 
     Args:
-        drawdown: 2-D bools (n_weft, n_warp), True where the warp end is over the weft pick.
-        resolution: (H, W) texels, or one int for a square tile; at least 2 texels per thread.
-        yarn_width: yarn width / thread spacing, in (0, 1]. Sampling at texel centres, the
-            gap fraction of the tile is (1 - yarn_width)^2 up to about one texel per thread.
-        yarn_height: peak-to-peak centreline undulation / thread spacing, in (0, 2].
-        fibre_twist_deg: fibre angle to the yarn axis in degrees, [-90, 90]; > 0 is an S
-            twist, < 0 a Z twist.
-        warp_colors, weft_colors: linear RGB in [0, 1], one triple for all or one per thread
-            ((n_warp, 3) / (n_weft, 3)); default white.
+        pattern: a :class:`~mscloth.patterns.draft.Draft`, or a drawdown: 2-D bools
+            (n_weft, n_warp), True where the warp end is over the weft pick.
+        resolution: texels along u (the height follows the tile's physical aspect), or an
+            exact (H, W); at least 2 texels per thread.
+        yarn_width: yarn width / thread spacing, in (0, 1], for every thread; default: each
+            thread's thickness / spacing from the draft. With uniform spacing and texel-centre
+            sampling the gap fraction is (1 - yarn_width)^2 up to about one texel per thread.
+        gap_fraction: the wanted fraction of the tile that is holes, in [0, 1); sets
+            yarn_width = 1 - sqrt(gap_fraction) (exact for uniform spacing). Not with yarn_width.
+        yarn_height: peak-to-peak centreline undulation / yarn width, in (0, 2].
+        profile_exponent: cross-section superellipse exponent p in [1, 16]: the surface rises
+            A (1 - |s|^p)^(1/p) across the yarn; 2 is an ellipse, larger is flatter.
+        fibre_twist_deg: fibre angle to the yarn (or ply) axis in degrees, [-90, 90]; > 0 is an
+            S twist, < 0 a Z twist.
+        ply_count: plies per yarn, 1 to 8 (1: a single yarn).
+        ply_twist_deg: angle of the plies to the yarn axis, in (0, 90) when ply_count > 1.
+        warp_colors, weft_colors: *linear* RGB in [0, 1], one triple for all or one per thread;
+            default: the draft's sRGB colours, converted to linear.
 
-    Yarn ids: warp end j -> j, weft pick i -> n_warp + i, gap -> -1.
+    Yarn ids: warp end j -> j, weft pick i -> n_warp + i, gap -> -1. Heights are in units of
+    the tile width; ``meta['tile_size_mm']`` is the tile's (width, height) in millimetres.
     """
-    dd = validate_drawdown(drawdown)
+    draft = _as_draft(pattern)
+    dd = draft.drawdown
     n_weft, n_warp = dd.shape
-    H, W = _resolution(resolution, n_weft, n_warp)
-    w = _real_in("yarn_width", yarn_width, 0.0, 1.0, lo_open=True, hi_open=False)
+    H, W = _tile_resolution(resolution, draft)
+    if yarn_width is not None and gap_fraction is not None:
+        raise ParameterError("give yarn_width or gap_fraction, not both")
+    if gap_fraction is not None:
+        g = _real_in("gap_fraction", gap_fraction, 0.0, 1.0, lo_open=False, hi_open=True)
+        yarn_width = 1.0 - math.sqrt(g)
+    if yarn_width is not None:
+        w = _real_in("yarn_width", yarn_width, 0.0, 1.0, lo_open=True, hi_open=False)
+        warp_width, weft_width = w * draft.warp_spacing, w * draft.weft_spacing
+    else:
+        warp_width = np.minimum(draft.warp_thickness, draft.warp_spacing)
+        weft_width = np.minimum(draft.weft_thickness, draft.weft_spacing)
     yh = _real_in("yarn_height", yarn_height, 0.0, 2.0, lo_open=True, hi_open=False)
+    p_exp = _real_in("profile_exponent", profile_exponent, 1.0, 16.0, False, False)
     twist = _real_in("fibre_twist_deg", fibre_twist_deg, -90.0, 90.0, False, False)
-    warp_rgb = _colors("warp_colors", warp_colors, n_warp)
-    weft_rgb = _colors("weft_colors", weft_colors, n_weft)
+    if isinstance(ply_count, bool) or not isinstance(ply_count, Integral) or not 1 <= ply_count <= 8:
+        raise ParameterError(f"ply_count must be an integer in [1, 8], got {ply_count!r}")
+    beta = math.radians(_real_in("ply_twist_deg", ply_twist_deg, 0.0, 90.0, True, True)) if ply_count > 1 else 0.0
+    warp_rgb = _colors("warp_colors", warp_colors, n_warp) if warp_colors is not None else srgb_to_linear(draft.warp_colors)
+    weft_rgb = _colors("weft_colors", weft_colors, n_weft) if weft_colors is not None else srgb_to_linear(draft.weft_colors)
     psi = math.radians(twist)
 
-    # Texel-centre coordinates in thread units: u * n_warp counts warp ends, v * n_weft picks.
-    pos_u = (np.arange(W) + 0.5) / W * n_warp
-    pos_v = (np.arange(H) + 0.5) / H * n_weft
-    amp_warp = 0.5 * yh / n_warp  # A, in tile widths
-    amp_weft = 0.5 * yh / n_weft
-    up = np.where(dd, 1.0, -1.0)  # +1 where the warp is over
+    width_mm, height_mm = draft.size_mm
+    warp_centre = np.cumsum(draft.warp_spacing) - 0.5 * draft.warp_spacing
+    weft_centre = np.cumsum(draft.weft_spacing) - 0.5 * draft.weft_spacing
+    x = (np.arange(W) + 0.5) / W * width_mm      # texel centres, mm
+    y = (np.arange(H) + 0.5) / H * height_mm
+    up = np.where(dd, 1.0, -1.0)                  # +1 where the warp is over
+    amp_warp = 0.5 * yh * warp_width              # centreline amplitude A per thread, mm
+    amp_weft = 0.5 * yh * weft_width
+
+    def bulge(amp, s):
+        return amp * np.clip(1.0 - np.abs(s) ** p_exp, 0.0, None) ** (1.0 / p_exp)
 
     # Warp end j: column band, centreline interpolated along v between weft crossings.
-    j, s_warp = _band(pos_u, n_warp, 0.5 * w)                     # (W,)
-    i0, i1, wv, dwv = _crossing_curve(pos_v, n_weft)             # (H,)
-    h0 = amp_warp * up[i0[:, None], j[None, :]]
-    h1 = amp_warp * up[i1[:, None], j[None, :]]
+    j, dx = _threads(warp_centre, draft.warp_spacing, x)                 # (W,)
+    s_warp = dx / (0.5 * warp_width[j])
+    i0, i1, wv, dwv = _crossings(weft_centre, height_mm, y)              # (H,)
+    a_w = amp_warp[j][None, :]
+    h0 = a_w * up[i0[:, None], j[None, :]]
+    h1 = a_w * up[i1[:, None], j[None, :]]
     centre_warp = h0 + (h1 - h0) * wv[:, None]
     slope_warp = (h1 - h0) * dwv[:, None]
-    bulge_warp = amp_warp * np.sqrt(np.clip(1.0 - s_warp**2, 0.0, None))
-    surf_warp = centre_warp + bulge_warp[None, :]
+    surf_warp = centre_warp + bulge(amp_warp[j], s_warp)[None, :]
 
-    # Weft pick i: row band, centreline interpolated along u between warp crossings;
-    # the weft is over exactly where the warp is under.
-    i, s_weft = _band(pos_v, n_weft, 0.5 * w)                     # (H,)
-    j0, j1, wu, dwu = _crossing_curve(pos_u, n_warp)             # (W,)
-    g0 = -amp_weft * up[i[:, None], j0[None, :]]
-    g1 = -amp_weft * up[i[:, None], j1[None, :]]
+    # Weft pick i: row band; the weft is over exactly where the warp is under.
+    i, dy = _threads(weft_centre, draft.weft_spacing, y)                 # (H,)
+    s_weft = dy / (0.5 * weft_width[i])
+    j0, j1, wu, dwu = _crossings(warp_centre, width_mm, x)               # (W,)
+    a_f = amp_weft[i][:, None]
+    g0 = -a_f * up[i[:, None], j0[None, :]]
+    g1 = -a_f * up[i[:, None], j1[None, :]]
     centre_weft = g0 + (g1 - g0) * wu[None, :]
     slope_weft = (g1 - g0) * dwu[None, :]
-    bulge_weft = amp_weft * np.sqrt(np.clip(1.0 - s_weft**2, 0.0, None))
-    surf_weft = centre_weft + bulge_weft[:, None]
+    surf_weft = centre_weft + bulge(amp_weft[i], s_weft)[:, None]
 
     in_warp = np.broadcast_to((np.abs(s_warp) <= 1.0)[None, :], (H, W))
     in_weft = np.broadcast_to((np.abs(s_weft) <= 1.0)[:, None], (H, W))
@@ -206,18 +281,44 @@ def woven_maps(drawdown: Any, resolution: int | tuple[int, int] = (128, 128), *,
     weft_vis = in_weft & ~warp_vis
     yarn = warp_vis | weft_vis
 
-    floor = -2.0 * max(amp_warp, amp_weft)
-    height = np.where(warp_vis, surf_warp, np.where(weft_vis, surf_weft, floor))
-
     x_axis = np.array([1.0, 0.0, 0.0])
     y_axis = np.array([0.0, 1.0, 0.0])
     s_warp_2d = np.broadcast_to(s_warp[None, :], (H, W))
     s_weft_2d = np.broadcast_to(s_weft[:, None], (H, W))
     t_warp, axis_warp = _twisted_tangent(y_axis, x_axis, slope_warp, s_warp_2d, psi)
     t_weft, axis_weft = _twisted_tangent(x_axis, y_axis, slope_weft, s_weft_2d, psi)
-    # Gap texels: the nearer yarn's axis; distances beyond each yarn's edge in tile widths.
-    beyond_warp = (np.abs(s_warp_2d) - 1.0) * (0.5 * w / n_warp)
-    beyond_weft = (np.abs(s_weft_2d) - 1.0) * (0.5 * w / n_weft)
+
+    relief_warp = relief_weft = 0.0
+    if ply_count > 1:
+        z = np.array([0.0, 0.0, 1.0])
+        for name, axis, s2d, along, across, across_vec, along_vec, length, diam in (
+                ("warp", axis_warp, s_warp_2d, np.broadcast_to(y[:, None], (H, W)),
+                 np.broadcast_to(dx[None, :], (H, W)), x_axis, y_axis, height_mm,
+                 np.broadcast_to(warp_width[j][None, :], (H, W))),
+                ("weft", axis_weft, s_weft_2d, np.broadcast_to(x[None, :], (H, W)),
+                 np.broadcast_to(dy[:, None], (H, W)), y_axis, x_axis, width_mm,
+                 np.broadcast_to(weft_width[i][:, None], (H, W)))):
+            sc = np.clip(s2d, -1.0, 1.0)[..., None]
+            n_y = sc * across_vec + np.sqrt(1.0 - sc * sc) * z
+            n_y /= np.linalg.norm(n_y, axis=-1, keepdims=True)
+            side = float(np.dot(np.cross(z, along_vec), across_vec))
+            t_ply, q = _ply_tangent(axis, n_y, along, across, side, diam, length, ply_count, beta, psi)
+            # Each ply is a small round bump: a groove between plies, 1/ply_count deep.
+            relief = 0.5 * diam / ply_count * (np.sqrt(1.0 - q * q) - 1.0)
+            if name == "warp":
+                t_warp, relief_warp = t_ply, relief
+            else:
+                t_weft, relief_weft = t_ply, relief
+        surf_warp = surf_warp + relief_warp
+        surf_weft = surf_weft + relief_weft
+
+    floor = -2.0 * max(amp_warp.max(), amp_weft.max())
+    height_mm_map = np.where(warp_vis, surf_warp, np.where(weft_vis, surf_weft, floor))
+    height = height_mm_map / width_mm             # tile-width units
+
+    # Gap texels: the nearer yarn's axis (a valid unit vector; the gap map masks it).
+    beyond_warp = np.abs(dx)[None, :] - 0.5 * warp_width[j][None, :]
+    beyond_weft = np.abs(dy)[:, None] - 0.5 * weft_width[i][:, None]
     gap_axis = np.where((beyond_warp <= beyond_weft)[..., None], axis_warp, axis_weft)
     tangent = np.where(warp_vis[..., None], t_warp,
                        np.where(weft_vis[..., None], t_weft, gap_axis))
@@ -228,17 +329,23 @@ def woven_maps(drawdown: Any, resolution: int | tuple[int, int] = (128, 128), *,
 
     meta = {
         "generator": "woven",
+        "name": draft.name,
         "drawdown": dd.astype(np.int8).tolist(),
-        "yarn_width": w,
+        "tile_size_mm": [width_mm, height_mm],
+        "yarn_width": None if yarn_width is None else float(yarn_width),
+        "gap_fraction": None if gap_fraction is None else float(gap_fraction),
         "yarn_height": yh,
+        "profile_exponent": p_exp,
         "fibre_twist_deg": twist,
         "twist": "S" if twist > 0 else ("Z" if twist < 0 else "none"),
-        "warp_colors": warp_rgb.tolist(),
-        "weft_colors": weft_rgb.tolist(),
+        "ply_count": int(ply_count),
+        "ply_twist_deg": float(ply_twist_deg),
+        "warp_colors": np.asarray(warp_rgb).tolist(),
+        "weft_colors": np.asarray(weft_rgb).tolist(),
     }
     return ClothMaps(tangent=tangent, normal=_height_normal(height), height=height,
                      gap=yarn.astype(np.float32), yarn_id=yarn_id.astype(np.int32),
                      albedo=albedo, meta=meta)
 
 
-__all__ = ["woven_maps"]
+__all__ = ["woven_maps", "srgb_to_linear"]
