@@ -164,7 +164,7 @@ def _crossings(centres: np.ndarray, period: float, pos: np.ndarray):
 
 
 def _ply_tangent(axis: np.ndarray, n_y: np.ndarray, along_mm: np.ndarray, across_mm: np.ndarray,
-                 side: float, diameter: np.ndarray, length_mm: float, ply_count: int,
+                 side: float, diameter: np.ndarray, mean_spacing: float, ply_count: int,
                  beta: float, psi: float) -> tuple[np.ndarray, np.ndarray]:
     """Fibre tangent and relief of a plied yarn: ``ply_count`` plies wind around the axis at
     ``beta``; their boundaries are stripes along the ply axis, and inside a ply the fibres
@@ -173,10 +173,11 @@ def _ply_tangent(axis: np.ndarray, n_y: np.ndarray, along_mm: np.ndarray, across
     ply_axis = math.cos(beta) * axis + math.sin(beta) * np.cross(n_y, axis)
     ply_axis /= np.linalg.norm(ply_axis, axis=-1, keepdims=True)
     # Stripes are invariant along the ply axis; one ply per pitch / ply_count along the
-    # yarn, rounded so a whole number of stripes fits the tile (seamless).
+    # yarn. The stripe length is rounded to a whole fraction of the mean crossing spacing
+    # (at least one stripe per crossing), so the tile is seamless and a tile of repeated
+    # drafts gives the same maps as the single one laid side by side.
     pitch = np.pi * diameter / (ply_count * math.tan(beta))
-    periods = np.maximum(1.0, np.round(length_mm / pitch))
-    stripe = length_mm / periods
+    stripe = mean_spacing / np.maximum(1.0, np.round(mean_spacing / pitch))
     phase = (along_mm - side * across_mm / math.tan(beta)) / stripe
     q = 2.0 * (phase - np.floor(phase)) - 1.0
     across_ply = np.cross(n_y, ply_axis)
@@ -293,10 +294,10 @@ def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
         z = np.array([0.0, 0.0, 1.0])
         for name, axis, s2d, along, across, across_vec, along_vec, length, diam in (
                 ("warp", axis_warp, s_warp_2d, np.broadcast_to(y[:, None], (H, W)),
-                 np.broadcast_to(dx[None, :], (H, W)), x_axis, y_axis, height_mm,
+                 np.broadcast_to(dx[None, :], (H, W)), x_axis, y_axis, height_mm / n_weft,
                  np.broadcast_to(warp_width[j][None, :], (H, W))),
                 ("weft", axis_weft, s_weft_2d, np.broadcast_to(x[None, :], (H, W)),
-                 np.broadcast_to(dy[:, None], (H, W)), y_axis, x_axis, width_mm,
+                 np.broadcast_to(dy[:, None], (H, W)), y_axis, x_axis, width_mm / n_warp,
                  np.broadcast_to(weft_width[i][:, None], (H, W)))):
             sc = np.clip(s2d, -1.0, 1.0)[..., None]
             n_y = sc * across_vec + np.sqrt(1.0 - sc * sc) * z

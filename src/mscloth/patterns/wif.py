@@ -1,0 +1,641 @@
+"""Read weave drafts from WIF (Weaving Information File, spec 1.1) files.
+
+WIF is the INI-like interchange format that handweaving programs (Fiberworks, PixeLoom,
+WeaveIt, handweaving.net, ...) export. What matters for cloth appearance is the drawdown,
+which a WIF does not store: it is computed here from the loom set-up the file records,
+
+    threading  (warp end  -> shaft(s) it passes through),
+    tieup      (treadle   -> shafts it lifts)  + treadling (pick -> treadle(s) pressed), or
+    liftplan   (pick      -> shafts lifted),
+
+as  ``lifted = treadling @ tieup`` (picks x shafts) and
+``drawdown = lifted @ threading.T > 0`` (picks x ends): warp end j is on top at pick i iff
+any shaft that end passes through is raised at pick i.
+
+Reading is tolerant of what real files contain (case-insensitive names, ``;`` comments,
+CRLF, a BOM, latin-1 text, 0-based thread numbers, missing optional sections) and strict
+about anything that would change the cloth: every malformed value raises
+:class:`~mscloth.errors.PatternError` naming the file, the section, the 1-based line and
+what was expected, e.g. ``2229.wif: [THREADING] line 57: shaft 9 does not exist (Shafts=8)``.
+
+Conventions chosen where the spec is silent (also recorded in ``Draft.meta["warnings"]``
+when they were needed):
+
+* Numbering is 1-based as the spec says. A thread section (THREADING, WARP COLORS, ...)
+  containing key 0 is read as 0-based. Shaft numbers are read as 0-based only if shaft 0
+  occurs somewhere (THREADING/TIEUP/LIFTPLAN values); treadle numbers likewise (TIEUP keys,
+  TREADLING values). Colour indices are looked up as written, so any base works.
+* Ends missing from THREADING are unthreaded: never lifted, weft on top. Picks missing from
+  TREADLING/LIFTPLAN lift nothing, whatever the shed type. A listed pick with an empty
+  value selects no shaft (which in a sinking shed means every shaft stays up).
+* ``Rising Shed=no`` (sinking shed): the tieup/liftplan names the shafts that sink, so the
+  raised shafts are the others.
+* When both LIFTPLAN and TIEUP+TREADLING are present, LIFTPLAN is used (it is the lift
+  sequence itself; the two agree in files written by consistent programs).
+* An empty value is tolerated (means "nothing"), except on the last line of the file, where
+  it is taken as a number cut off by truncation.
+* ``Units`` missing while a spacing/thickness is given: decipoints are assumed.
+  ``Range`` missing from COLOR PALETTE: ``0,255`` is assumed.
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+from ..errors import PatternError
+from .draft import DEFAULT_SPACING_MM, DEFAULT_THICKNESS_MM, Draft
+
+__all__ = ["read_wif", "parse_wif", "UNIT_MM"]
+
+#: Millimetres per WIF length unit. A decipoint is a tenth of a printer's point (1/72 in).
+UNIT_MM = {
+    "DECIPOINTS": 25.4 / 720.0,
+    "INCHES": 25.4,
+    "CENTIMETERS": 10.0,
+    "MILLIMETERS": 1.0,
+}
+# Spellings seen in the wild (singular, British, abbreviations) -> the canonical unit.
+_UNIT_ALIASES = {
+    "DECIPOINT": "DECIPOINTS", "DECIPOINTS": "DECIPOINTS", "DP": "DECIPOINTS",
+    "INCH": "INCHES", "INCHES": "INCHES", "IN": "INCHES",
+    "CENTIMETER": "CENTIMETERS", "CENTIMETERS": "CENTIMETERS", "CENTIMETRE": "CENTIMETERS",
+    "CENTIMETRES": "CENTIMETERS", "CM": "CENTIMETERS",
+    "MILLIMETER": "MILLIMETERS", "MILLIMETERS": "MILLIMETERS", "MILLIMETRE": "MILLIMETERS",
+    "MILLIMETRES": "MILLIMETERS", "MM": "MILLIMETERS",
+}
+_BOOLS = {"YES": True, "TRUE": True, "ON": True, "1": True,
+          "NO": False, "FALSE": False, "OFF": False, "0": False}
+
+# Sections whose syntax is checked up front (in file order), so the first malformed line of
+# anything the draft is built from is reported, wherever the reading code would meet it.
+# Unknown sections ([TEXT], [NOTES], program-private ones) are never checked: a stray line
+# there cannot change the cloth.
+_CHECKED_SECTIONS = (
+    "WIF", "CONTENTS", "WEAVING", "WARP", "WEFT", "COLOR PALETTE", "COLOR TABLE",
+    "THREADING", "TIEUP", "TREADLING", "LIFTPLAN", "WARP COLORS", "WEFT COLORS",
+    "WARP SPACING", "WEFT SPACING", "WARP THICKNESS", "WEFT THICKNESS",
+)
+
+_INT_RE = re.compile(r"[+]?\d+\Z")
+_NUM_RE = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?\Z")
+_DECIMAL_COMMA_RE = re.compile(r"[+-]?\d+,\d+\Z")
+
+
+def _norm(name: str) -> str:
+    """Canonical spelling of a section or key name: upper case, single spaces, US 'COLOR'."""
+    out = " ".join(name.split()).upper().replace("COLOUR", "COLOR")
+    # '01' and '1' are the same thread: compare numeric keys by value.
+    return str(int(out)) if _INT_RE.match(out) else out
+
+
+@dataclass
+class _Entry:
+    key: str        # as written (for messages)
+    value: str      # comment and surrounding whitespace stripped
+    line: int       # 1-based line in the file
+
+
+@dataclass
+class _Section:
+    name: str                                   # canonical, e.g. "WARP COLORS"
+    line: int                                   # line of the (first) header
+    entries: dict[str, _Entry] = field(default_factory=dict)
+    problems: list[tuple[int, str]] = field(default_factory=list)   # (line, message)
+
+
+class _Wif:
+    """A WIF file split into sections, with helpers that raise well-placed PatternErrors."""
+
+    def __init__(self, text: str, fname: str):
+        self.fname = fname
+        self.sections: dict[str, _Section] = {}
+        self.order: list[str] = []
+        self.last_line = 0          # last line carrying data: where truncation shows
+        self.warnings: list[str] = []
+        self._split(text)
+
+    # -- errors -------------------------------------------------------------------------
+    def error(self, section: str | None, line: int | None, msg: str) -> PatternError:
+        where = self.fname
+        if section is not None:
+            where += f": [{section}]"
+        if line is not None:
+            where += f" line {line}"
+        return PatternError(f"{where}: {msg}")
+
+    # -- lexing ---------------------------------------------------------------------------
+    def _split(self, text: str) -> None:
+        # Split on CRLF / CR / LF only: str.splitlines() also splits on form feeds, vertical
+        # tabs and U+2028, which would make line numbers disagree with a text editor's.
+        current: _Section | None = None
+        for lineno, raw in enumerate(re.split(r"\r\n|\r|\n", text), start=1):
+            line = raw.split(";", 1)[0].strip()      # ';' starts a comment, whole-line or inline
+            if not line:
+                continue
+            self.last_line = lineno
+            if line.startswith("["):
+                if line.endswith("]") and len(line) > 2:
+                    name = _norm(line[1:-1])
+                    if name not in self.sections:
+                        self.sections[name] = _Section(name, lineno)
+                        self.order.append(name)
+                    current = self.sections[name]     # a repeated header continues the section
+                    continue
+                msg = f"expected a section header like [THREADING] or a key=value line, got {line!r}"
+                if current is not None:
+                    current.problems.append((lineno, msg))
+                continue
+            if current is None:
+                # Text before the first header: harmless if the file turns out to be a WIF.
+                self.warnings.append(f"line {lineno}: text before the first section ignored")
+                continue
+            key, eq, value = line.partition("=")
+            key, value = key.strip(), value.strip()
+            if not eq or not key:
+                current.problems.append(
+                    (lineno, f"expected key=value, got {line!r}"
+                             + (" (the file ends here: truncated?)" if not eq else "")))
+                continue
+            nkey = _norm(key)
+            old = current.entries.get(nkey)
+            if old is None:
+                current.entries[nkey] = _Entry(key, value, lineno)
+            elif "".join(old.value.split()).upper() != "".join(value.split()).upper():
+                current.problems.append(
+                    (lineno, f"duplicate key {key!r}: {value!r} here but {old.value!r} on line {old.line}"))
+
+    def check_syntax(self) -> None:
+        """Raise for the first malformed line of any section the draft is built from."""
+        found = [(line, name, msg) for name in self.order if name in _CHECKED_SECTIONS
+                 for line, msg in self.sections[name].problems]
+        if found:
+            line, name, msg = min(found)
+            raise self.error(name, line, msg)
+
+    # -- access ---------------------------------------------------------------------------
+    def section(self, name: str) -> _Section | None:
+        return self.sections.get(name)
+
+    def get(self, section: str, key: str) -> _Entry | None:
+        sec = self.sections.get(section)
+        return None if sec is None else sec.entries.get(key)
+
+    # -- value parsers (each raises naming section and line) --------------------------------
+    def empty_ok(self, section: str, entry: _Entry, what: str) -> bool:
+        """True if ``entry`` is empty and that is acceptable (anywhere but the file's end)."""
+        if entry.value:
+            return False
+        if entry.line == self.last_line:
+            raise self.error(section, entry.line,
+                             f"expected {what} after {entry.key!r}=, got nothing (the file ends here: truncated?)")
+        return True
+
+    def int_value(self, section: str, entry: _Entry, what: str, lo: int = 1) -> int:
+        text = entry.value
+        if not text:
+            self.empty_ok(section, entry, what)
+            raise self.error(section, entry.line, f"expected {what} after {entry.key!r}=, got nothing")
+        if not _INT_RE.match(text):
+            raise self.error(section, entry.line, f"expected {what} (a whole number), got {text!r}")
+        value = int(text)
+        if value < lo:
+            raise self.error(section, entry.line, f"expected {what} >= {lo}, got {value}")
+        return value
+
+    def int_list(self, section: str, entry: _Entry, what: str) -> list[int]:
+        """Comma-separated non-negative integers; empty -> [] (see empty_ok)."""
+        if self.empty_ok(section, entry, f"{what} numbers"):
+            return []
+        out = []
+        for item in entry.value.split(","):
+            item = item.strip()
+            if not _INT_RE.match(item):
+                got = "an empty item" if not item else repr(item)
+                raise self.error(section, entry.line,
+                                 f"expected {what} numbers separated by commas, got {got} in {entry.value!r}")
+            out.append(int(item))
+        return out
+
+    def float_value(self, section: str, entry: _Entry, what: str, positive: bool = True) -> float:
+        text = entry.value
+        if not text:
+            self.empty_ok(section, entry, what)
+            raise self.error(section, entry.line, f"expected {what} after {entry.key!r}=, got nothing")
+        if _DECIMAL_COMMA_RE.match(text):       # "0,0185" from a decimal-comma locale
+            text = text.replace(",", ".")
+        if not _NUM_RE.match(text):
+            raise self.error(section, entry.line, f"expected {what} (a number), got {entry.value!r}")
+        value = float(text)
+        if not math.isfinite(value) or (positive and value <= 0.0):
+            raise self.error(section, entry.line, f"expected {what} > 0, got {entry.value!r}")
+        return value
+
+    def bool_value(self, section: str, entry: _Entry) -> bool:
+        value = _BOOLS.get(entry.value.upper())
+        if value is None:
+            raise self.error(section, entry.line,
+                             f"expected yes/no/true/false/1/0 for {entry.key!r}, got {entry.value!r}")
+        return value
+
+    def key_number(self, section: str, entry: _Entry, what: str) -> int:
+        if not _INT_RE.match(entry.key.strip()):
+            raise self.error(section, entry.line, f"expected a {what} number as the key, got {entry.key!r}")
+        return int(entry.key)
+
+
+# ---------------------------------------------------------------------------------------
+# Public API
+# ---------------------------------------------------------------------------------------
+
+def read_wif(path) -> Draft:
+    """Read the WIF file at ``path`` into a :class:`Draft` named after the file's stem.
+
+    Raises PatternError (never OSError / KeyError / ValueError) when the file cannot be
+    read or is not a usable WIF; the message names the file, section and line.
+    """
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        raise PatternError(f"{p.name}: cannot read WIF file {str(p)!r}: {reason}") from None
+    return parse_wif(data, name=p.name)
+
+
+def parse_wif(text: str | bytes, name: str = "<string>") -> Draft:
+    """Parse WIF content (``str``, or ``bytes`` in any common encoding) into a Draft.
+
+    ``name`` is the file name used in error messages; the Draft is named after its stem.
+    """
+    fname = Path(name).name or name
+    wif = _Wif(_decode(text), fname)
+    return _build(wif, name)
+
+
+def _decode(data: str | bytes) -> str:
+    """Text of a WIF whatever program wrote it: BOMs removed, non-UTF-8 read as cp1252/latin-1."""
+    if isinstance(data, str):
+        return data.lstrip("\ufeff")
+    if data.startswith(b"\xef\xbb\xbf"):
+        return data[3:].decode("utf-8", errors="replace")
+    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
+        return data.decode("utf-16", errors="replace")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        pass
+    try:
+        return data.decode("cp1252")           # Windows programs' usual 8-bit encoding
+    except UnicodeDecodeError:
+        return data.decode("latin-1")          # total: every byte is a character
+
+
+# ---------------------------------------------------------------------------------------
+# Building the draft
+# ---------------------------------------------------------------------------------------
+
+@dataclass
+class _Numbered:
+    """A thread-numbered section: 0-based index -> entry, plus the numbering base used."""
+    section: str
+    base: int
+    items: dict[int, _Entry]
+
+
+def _numbered(wif: _Wif, name: str, what: str) -> _Numbered | None:
+    sec = wif.section(name)
+    if sec is None:
+        return None
+    keyed = {wif.key_number(name, e, what): e for e in sec.entries.values()}
+    # Key 0 only occurs in files that count from 0 (the spec counts from 1).
+    base = 0 if 0 in keyed else 1
+    return _Numbered(name, base, {k - base: e for k, e in keyed.items()})
+
+
+def _limit_threads(wif: _Wif, num: _Numbered | None, count: int, explicit: bool, side: str) -> None:
+    """Check thread numbers against the thread count; extras are an error if the count was stated
+    ([WARP]/[WEFT] Threads), otherwise (count inferred from the threading/treadling) ignored."""
+    if num is None:
+        return
+    kind = "warp end" if side == "WARP" else "weft pick"
+    for idx in sorted(num.items):
+        if idx >= count:
+            e = num.items[idx]
+            if explicit:
+                raise wif.error(num.section, e.line,
+                                f"{kind} {idx + num.base} does not exist ([{side}] Threads={count}"
+                                + (", numbered from 0)" if num.base == 0 else ")"))
+            wif.warnings.append(f"[{num.section}] line {e.line}: {kind} {idx + num.base} beyond the "
+                                f"{count} {kind}s in the draft, ignored")
+    num.items = {k: e for k, e in num.items.items() if k < count}
+
+
+def _count(wif: _Wif, section: str) -> tuple[int | None, _Entry | None]:
+    e = wif.get(section, "THREADS")
+    if e is None:
+        return None, None
+    return wif.int_value(section, e, "the number of threads"), e
+
+
+def _build(wif: _Wif, name: str) -> Draft:
+    fname = wif.fname
+    if "WIF" not in wif.sections:
+        found = ", ".join(f"[{s}]" for s in wif.order[:6]) or "no sections at all"
+        raise PatternError(f"{fname}: not a WIF file: no [WIF] section (found {found})")
+    wif.check_syntax()
+    meta: dict = {"file": fname, "format": "WIF"}
+    for key, label in (("VERSION", "version"), ("SOURCE PROGRAM", "source_program"),
+                       ("SOURCE VERSION", "source_version"), ("DATE", "date")):
+        e = wif.get("WIF", key)
+        if e is not None:
+            meta[label] = e.value
+    title = wif.get("TEXT", "TITLE")
+    if title is not None and title.value:
+        meta["title"] = title.value
+
+    contents = wif.section("CONTENTS")
+
+    def missing(section: str, need: str) -> PatternError:
+        """Error for an absent required section, pointing at [CONTENTS] if it promised it."""
+        msg = f"[{section}] missing: {need}"
+        listed = contents.entries.get(section) if contents is not None else None
+        if listed is not None and _BOOLS.get(listed.value.upper(), True):
+            msg += f" ([CONTENTS] line {listed.line} lists it: is the file truncated?)"
+        return PatternError(f"{fname}: {msg}")
+
+    if contents is not None:
+        for key, e in contents.entries.items():
+            if _BOOLS.get(e.value.upper(), False) and key not in wif.sections:
+                wif.warnings.append(f"[CONTENTS] line {e.line} lists [{key}] but the file has none")
+
+    # --- loom: shafts, treadles, shed -------------------------------------------------------
+    n_shafts = n_treadles = None
+    rising = True
+    e = wif.get("WEAVING", "SHAFTS")
+    if e is not None:
+        n_shafts = wif.int_value("WEAVING", e, "the number of shafts")
+    e = wif.get("WEAVING", "TREADLES")
+    if e is not None and e.value:      # liftplan-only files sometimes leave it empty / 0
+        n_treadles = wif.int_value("WEAVING", e, "the number of treadles", lo=0)
+    e = wif.get("WEAVING", "RISING SHED")
+    if e is not None:
+        rising = wif.bool_value("WEAVING", e)
+
+    # --- threading -----------------------------------------------------------------------------
+    if wif.section("THREADING") is None:
+        raise missing("THREADING", "a draft needs a threading (which shaft each warp end is on)")
+    threading = _numbered(wif, "THREADING", "warp end")
+    if not threading.items:
+        raise wif.error("THREADING", wif.sections["THREADING"].line,
+                        "section is empty: expected end=shaft lines (truncated file?)")
+    thr_shafts = {i: wif.int_list("THREADING", e, "shaft") for i, e in threading.items.items()}
+
+    n_warp, warp_threads = _count(wif, "WARP")
+    warp_explicit = n_warp is not None
+    if n_warp is None:
+        n_warp = max(threading.items) + 1
+    _limit_threads(wif, threading, n_warp, warp_explicit, "WARP")
+    thr_shafts = {i: s for i, s in thr_shafts.items() if i in threading.items}
+
+    # --- lift sequence -------------------------------------------------------------------------
+    has_lift = wif.section("LIFTPLAN") is not None
+    has_tread = wif.section("TREADLING") is not None
+    has_tieup = wif.section("TIEUP") is not None
+    if has_lift:
+        lift_source = "liftplan"
+        picks = _numbered(wif, "LIFTPLAN", "weft pick")
+        pick_values = {i: wif.int_list("LIFTPLAN", e, "shaft") for i, e in picks.items.items()}
+        tieup_items: dict[int, list[int]] = {}
+        tieup_num = None
+    elif has_tread and has_tieup:
+        lift_source = "treadling"
+        picks = _numbered(wif, "TREADLING", "weft pick")
+        pick_values = {i: wif.int_list("TREADLING", e, "treadle") for i, e in picks.items.items()}
+        tieup_sec = wif.sections["TIEUP"]
+        tieup_num = {wif.key_number("TIEUP", e, "treadle"): e for e in tieup_sec.entries.values()}
+        tieup_items = {t: wif.int_list("TIEUP", e, "shaft") for t, e in tieup_num.items()}
+    elif has_tread:
+        raise missing("TIEUP", "[TREADLING] names treadles but there is no [TIEUP] saying which "
+                               "shafts they lift (or give a [LIFTPLAN])")
+    else:
+        which = "[TIEUP] without [TREADLING]" if has_tieup else "neither"
+        raise missing("TREADLING" if has_tieup else "LIFTPLAN",
+                      f"a draft needs [TIEUP]+[TREADLING] or [LIFTPLAN] to say which shafts each "
+                      f"pick lifts; found {which}")
+    lift_name = picks.section
+    if not picks.items:
+        raise wif.error(lift_name, wif.sections[lift_name].line,
+                        "section is empty: expected pick=... lines (truncated file?)")
+
+    n_weft, weft_threads = _count(wif, "WEFT")
+    weft_explicit = n_weft is not None
+    if n_weft is None:
+        n_weft = max(picks.items) + 1
+    _limit_threads(wif, picks, n_weft, weft_explicit, "WEFT")
+    pick_values = {i: v for i, v in pick_values.items() if i in picks.items}
+
+    # --- shaft numbering: one namespace across threading, tieup and liftplan ----------------
+    shaft_uses: list[tuple[str, _Entry, int]] = []
+    shaft_uses += [("THREADING", threading.items[i], s) for i, ss in thr_shafts.items() for s in ss]
+    if lift_source == "liftplan":
+        shaft_uses += [("LIFTPLAN", picks.items[i], s) for i, ss in pick_values.items() for s in ss]
+    else:
+        shaft_uses += [("TIEUP", tieup_num[t], s) for t, ss in tieup_items.items() for s in ss]
+    zero_shaft = next(((sec, e) for sec, e, s in shaft_uses if s == 0), None)
+    shaft_base = 0 if zero_shaft is not None else 1
+    base_note = (f"; shafts are numbered from 0 here because [{zero_shaft[0]}] line "
+                 f"{zero_shaft[1].line} uses shaft 0" if zero_shaft is not None else "")
+    if n_shafts is None:
+        n_shafts = max((s for _, _, s in shaft_uses), default=shaft_base) - shaft_base + 1
+        wif.warnings.append(f"no [WEAVING] Shafts: {n_shafts} inferred from the shafts used")
+    for sec, e, s in shaft_uses:
+        if s - shaft_base >= n_shafts:
+            raise wif.error(sec, e.line, f"shaft {s} does not exist (Shafts={n_shafts}{base_note})")
+
+    # --- treadle numbering (TIEUP keys, TREADLING values) ------------------------------------
+    if lift_source == "treadling":
+        tread_uses = [("TIEUP", tieup_num[t], t) for t in tieup_items]
+        tread_uses += [("TREADLING", picks.items[i], t) for i, ts in pick_values.items() for t in ts]
+        zero_t = next(((sec, e) for sec, e, t in tread_uses if t == 0), None)
+        tread_base = 0 if zero_t is not None else 1
+        t_note = (f"; treadles are numbered from 0 here because [{zero_t[0]}] line "
+                  f"{zero_t[1].line} uses treadle 0" if zero_t is not None else "")
+        if not n_treadles:
+            n_treadles = max(t for _, _, t in tread_uses) - tread_base + 1
+            wif.warnings.append(f"no [WEAVING] Treadles: {n_treadles} inferred from the treadles used")
+        for sec, e, t in tread_uses:
+            if t - tread_base >= n_treadles:
+                raise wif.error(sec, e.line, f"treadle {t} does not exist (Treadles={n_treadles}{t_note})")
+
+    # --- drawdown: boolean matrix products --------------------------------------------------
+    thread_m = np.zeros((n_warp, n_shafts), dtype=bool)          # end -> shafts
+    _scatter(thread_m, thr_shafts, shaft_base)
+    if lift_source == "liftplan":
+        selected = np.zeros((n_weft, n_shafts), dtype=bool)       # pick -> shafts
+        _scatter(selected, pick_values, shaft_base)
+    else:
+        tieup_m = np.zeros((n_treadles, n_shafts), dtype=bool)    # treadle -> shafts
+        _scatter(tieup_m, {t - tread_base: ss for t, ss in tieup_items.items()}, shaft_base)
+        tread_m = np.zeros((n_weft, n_treadles), dtype=bool)      # pick -> treadles
+        _scatter(tread_m, pick_values, tread_base)
+        # int64 products: several treadles may tie the same shaft; counts must not wrap.
+        selected = (tread_m.astype(np.int64) @ tieup_m.astype(np.int64)) > 0
+    # Sinking shed: the tieup/liftplan names the shafts pulled down; the rest are up.
+    raised = selected if rising else ~selected
+    listed = np.zeros(n_weft, dtype=bool)
+    listed[list(picks.items)] = True
+    raised &= listed[:, None]                                     # absent picks lift nothing
+    drawdown = (raised.astype(np.int64) @ thread_m.T.astype(np.int64)) > 0
+
+    # --- colours ------------------------------------------------------------------------------
+    table, rng = _color_table(wif)
+    warp_colors = _thread_colors(wif, "WARP", n_warp, warp_explicit, table, rng)
+    weft_colors = _thread_colors(wif, "WEFT", n_weft, weft_explicit, table, rng)
+
+    # --- spacing / thickness ------------------------------------------------------------------
+    warp_units, warp_factor = _units(wif, "WARP")
+    weft_units, weft_factor = _units(wif, "WEFT")
+    warp_spacing = _lengths(wif, "WARP", "SPACING", n_warp, warp_explicit, warp_factor, DEFAULT_SPACING_MM)
+    weft_spacing = _lengths(wif, "WEFT", "SPACING", n_weft, weft_explicit, weft_factor, DEFAULT_SPACING_MM)
+    warp_thick = _lengths(wif, "WARP", "THICKNESS", n_warp, warp_explicit, warp_factor, DEFAULT_THICKNESS_MM)
+    weft_thick = _lengths(wif, "WEFT", "THICKNESS", n_weft, weft_explicit, weft_factor, DEFAULT_THICKNESS_MM)
+
+    meta.update({
+        "shafts": n_shafts,
+        "treadles": n_treadles or 0,
+        "rising_shed": rising,
+        "lift_source": lift_source,
+        "warp_units": warp_units,
+        "weft_units": weft_units,
+        "warnings": wif.warnings,
+    })
+    try:
+        return Draft(drawdown, warp_colors=warp_colors, weft_colors=weft_colors,
+                     warp_spacing=warp_spacing, weft_spacing=weft_spacing,
+                     warp_thickness=warp_thick, weft_thickness=weft_thick,
+                     name=Path(name).stem or name, meta=meta)
+    except PatternError as exc:       # should not happen: values were checked above
+        raise PatternError(f"{fname}: {exc}") from None
+
+
+def _scatter(matrix: np.ndarray, rows: dict[int, list[int]], base: int) -> None:
+    """Set ``matrix[row, col - base] = True`` for every listed (row, col): one fancy-index write."""
+    pairs = [(r, c - base) for r, cols in rows.items() for c in cols]
+    if pairs:
+        r, c = np.array(pairs, dtype=np.int64).T
+        matrix[r, c] = True
+
+
+def _color_table(wif: _Wif) -> tuple[dict[int, np.ndarray], tuple[float, float]]:
+    """COLOR TABLE as index -> sRGB in [0, 1], normalised by the palette's Range."""
+    lo, hi = 0.0, 255.0
+    form = wif.get("COLOR PALETTE", "FORM")
+    if form is not None and form.value and form.value.upper() != "RGB":
+        raise wif.error("COLOR PALETTE", form.line, f"expected Form=RGB (the only WIF colour form), got {form.value!r}")
+    rng = wif.get("COLOR PALETTE", "RANGE")
+    if rng is not None:
+        parts = [p.strip() for p in rng.value.split(",")]
+        if len(parts) != 2 or not all(_NUM_RE.match(p) for p in parts):
+            raise wif.error("COLOR PALETTE", rng.line, f"expected Range=lo,hi (two numbers), got {rng.value!r}")
+        lo, hi = float(parts[0]), float(parts[1])
+        if not hi > lo:
+            raise wif.error("COLOR PALETTE", rng.line, f"expected Range=lo,hi with hi > lo, got {rng.value!r}")
+    elif wif.section("COLOR TABLE") is not None:
+        wif.warnings.append("no [COLOR PALETTE] Range: 0,255 assumed")
+    table: dict[int, np.ndarray] = {}
+    sec = wif.section("COLOR TABLE")
+    if sec is not None:
+        for e in sec.entries.values():
+            idx = wif.key_number("COLOR TABLE", e, "colour")
+            table[idx] = _rgb(wif, "COLOR TABLE", e, e.value, (lo, hi))
+    return table, (lo, hi)
+
+
+def _rgb(wif: _Wif, section: str, entry: _Entry, text: str, rng: tuple[float, float]) -> np.ndarray:
+    lo, hi = rng
+    parts = [p.strip() for p in text.split(",")]
+    if len(parts) != 3:
+        raise wif.error(section, entry.line,
+                        f"expected a colour r,g,b (3 numbers), got {len(parts)} value(s) in {text!r}")
+    bad = [p for p in parts if not _NUM_RE.match(p)]
+    if bad:
+        raise wif.error(section, entry.line, f"expected colour components as numbers, got {bad[0]!r} in {text!r}")
+    vals = np.array([float(p) for p in parts])
+    if np.any(vals < lo) or np.any(vals > hi):
+        raise wif.error(section, entry.line,
+                        f"colour {text!r} is outside the palette Range {lo:g},{hi:g}")
+    return (vals - lo) / (hi - lo)
+
+
+def _thread_colors(wif: _Wif, side: str, count: int, explicit: bool,
+                   table: dict[int, np.ndarray], rng) -> np.ndarray | None:
+    """Per-thread colours: [SIDE COLORS] entry, else [SIDE] Color, else white (None)."""
+    section = f"{side} COLORS"
+
+    def lookup(sec: str, e: _Entry, index: int) -> np.ndarray:
+        if index not in table:
+            have = (f"it has {', '.join(map(str, sorted(table)[:8]))}"
+                    + ("..." if len(table) > 8 else "")) if table else "there is no [COLOR TABLE]"
+            raise wif.error(sec, e.line, f"colour {index} is not in [COLOR TABLE] ({have})")
+        return table[index]
+
+    default = None
+    e = wif.get(side, "COLOR")
+    if e is not None and e.value:
+        parts = [p.strip() for p in e.value.split(",")]
+        if len(parts) == 1:
+            default = lookup(side, e, wif.int_value(side, e, "a colour index", lo=0))
+        elif len(parts) in (3, 4):
+            # Some writers give "index,r,g,b" or just "r,g,b": the RGB is the colour itself.
+            default = _rgb(wif, side, e, ",".join(parts[-3:]), rng)
+        else:
+            raise wif.error(side, e.line, f"expected Color=index (or index,r,g,b), got {e.value!r}")
+    num = _numbered(wif, section, f"{side.lower()} thread")
+    if num is None and default is None:
+        return None
+    colors = np.tile(np.ones(3) if default is None else default, (count, 1))
+    _limit_threads(wif, num, count, explicit, side)
+    if num is not None:
+        for i, e in num.items.items():
+            if wif.empty_ok(section, e, "a colour index"):
+                continue
+            colors[i] = lookup(section, e, wif.int_value(section, e, "a colour index", lo=0))
+    return colors
+
+
+def _units(wif: _Wif, side: str) -> tuple[str | None, float]:
+    e = wif.get(side, "UNITS")
+    if e is None or not e.value:
+        uses = [wif.get(side, "SPACING"), wif.get(side, "THICKNESS"),
+                wif.section(f"{side} SPACING"), wif.section(f"{side} THICKNESS")]
+        if any(u is not None for u in uses):
+            wif.warnings.append(f"[{side}] has no Units: decipoints assumed")
+        return "Decipoints", UNIT_MM["DECIPOINTS"]
+    unit = _UNIT_ALIASES.get(_norm(e.value))
+    if unit is None:
+        raise wif.error(side, e.line, f"expected Units=Decipoints, Inches, Centimeters or Millimeters, got {e.value!r}")
+    return unit.title(), UNIT_MM[unit]
+
+
+def _lengths(wif: _Wif, side: str, what: str, count: int, explicit: bool,
+             factor: float, default_mm: float) -> np.ndarray | None:
+    """Per-thread spacing or thickness in mm: [SIDE WHAT] entry, else [SIDE] What, else default."""
+    e = wif.get(side, what)
+    base = None
+    if e is not None and e.value:
+        base = wif.float_value(side, e, f"a {what.lower()}") * factor
+    num = _numbered(wif, f"{side} {what}", f"{side.lower()} thread")
+    if num is None:
+        return None if base is None else np.full(count, base)
+    _limit_threads(wif, num, count, explicit, side)
+    out = np.full(count, default_mm if base is None else base)
+    for i, ent in num.items.items():
+        if wif.empty_ok(num.section, ent, f"a {what.lower()}"):
+            continue
+        out[i] = wif.float_value(num.section, ent, f"a {what.lower()}") * factor
+    return out

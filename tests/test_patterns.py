@@ -1,0 +1,147 @@
+"""Named weaves, pattern names, generate_maps and `mscloth maps`."""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from mscloth.errors import ParameterError, PatternError
+from mscloth.maps.generate import generate_maps
+from mscloth.maps.woven import srgb_to_linear, woven_maps
+from mscloth.patterns import Draft, basket, named_pattern, plain, satin, twill
+
+T, F = True, False
+
+
+def test_plain():
+    assert np.array_equal(plain(), [[T, F], [F, T]])
+
+
+def test_twill_2_2_z_and_s():
+    z = twill(2, 2, "Z")
+    assert np.array_equal(z, [[T, F, F, T], [T, T, F, F], [F, T, T, F], [F, F, T, T]])
+    # S twill is the mirror image: the diagonal runs the other way.
+    assert np.array_equal(twill(2, 2, "S"), z[:, ::-1][:, np.r_[3, 0:3]])
+    # every end floats over exactly `over` picks, every pick is crossed by `over` ends
+    t31 = twill(3, 1)
+    assert np.all(t31.sum(axis=0) == 3) and np.all(t31.sum(axis=1) == 3)
+
+
+def test_satin_5_2_interlaces_once_per_end_and_pick():
+    s = satin(5, 2)
+    expected = np.ones((5, 5), bool)
+    for j in range(5):
+        expected[(2 * j) % 5, j] = False
+    assert np.array_equal(s, expected)
+    assert np.all((~s).sum(axis=0) == 1) and np.all((~s).sum(axis=1) == 1)
+    with pytest.raises(PatternError, match="coprime"):
+        satin(6, 2)
+    with pytest.raises(PatternError, match=r"\[2, 3\]"):
+        satin(5, 1)
+
+
+def test_basket_2():
+    assert np.array_equal(basket(2), [[T, T, F, F], [T, T, F, F], [F, F, T, T], [F, F, T, T]])
+
+
+@pytest.mark.parametrize("name,shape", [("plain", (2, 2)), ("twill-2-1", (3, 3)), ("twill-3-1-S", (4, 4)),
+                                        ("satin-8-3", (8, 8)), ("sateen-5-2", (5, 5)), ("basket-3", (6, 6))])
+def test_pattern_names(name, shape):
+    draft = named_pattern(name)
+    assert isinstance(draft, Draft) and draft.drawdown.shape == shape
+
+
+def test_sateen_is_satin_inverted():
+    assert np.array_equal(named_pattern("sateen-5-2").drawdown, ~named_pattern("satin-5-2").drawdown)
+
+
+@pytest.mark.parametrize("bad", ["twill-x", "satin-1-2-3", "nonsense", "basket-0"])
+def test_bad_pattern_names(bad):
+    with pytest.raises(PatternError):
+        named_pattern(bad)
+
+
+@pytest.mark.parametrize("gap", [0.0, 0.04, 0.1, 0.25])
+def test_gap_fraction_parameter(gap):
+    maps = generate_maps("twill-2-2", 256, gap_fraction=gap)
+    # Texel-centre sampling: the hole fraction is exact up to one texel row/column per thread.
+    texels_per_thread = 256 / 4
+    assert abs((1.0 - maps.gap.mean()) - gap) <= 2.0 / texels_per_thread
+
+
+def test_draft_colours_become_linear_albedo():
+    draft = Draft(plain(), warp_colors=[(1.0, 0.5, 0.0)] * 2, weft_colors=[(0.0, 0.0, 1.0)] * 2)
+    maps = woven_maps(draft, 64)
+    warp = maps.albedo[maps.yarn_id == 0][0]
+    np.testing.assert_allclose(warp, srgb_to_linear([1.0, 0.5, 0.0]), rtol=1e-6)
+    assert abs(warp[1] - 0.214) < 1e-3  # sRGB 0.5 is linear 0.214
+    np.testing.assert_allclose(maps.albedo[maps.yarn_id == 2][0], [0, 0, 1])
+
+
+def test_per_thread_spacing_sets_tile_aspect_and_bands():
+    # Warp ends twice as far apart as weft picks: the tile is twice as wide as high.
+    draft = Draft(plain(), warp_spacing=[1.0, 1.0], weft_spacing=[0.5, 0.5],
+                  warp_thickness=0.8, weft_thickness=0.4)
+    maps = woven_maps(draft, 128)
+    assert maps.resolution == (64, 128)
+    assert maps.meta["tile_size_mm"] == [2.0, 1.0]
+    # An uneven warp: end 0 is 3x wider than end 1, and so is its column band.
+    draft = Draft(basket(1), warp_spacing=[1.5, 0.5], weft_spacing=[1.0, 1.0],
+                  warp_thickness=[1.2, 0.4], weft_thickness=0.8)
+    maps = woven_maps(draft, (64, 64))
+    cols0 = np.count_nonzero(np.any(maps.yarn_id == 0, axis=0))
+    cols1 = np.count_nonzero(np.any(maps.yarn_id == 1, axis=0))
+    assert abs(cols0 / cols1 - 3.0) < 0.25
+
+
+def test_plied_yarn_is_seamless_and_unit():
+    small = woven_maps(plain(), (64, 64), ply_count=3, ply_twist_deg=35.0)
+    big = woven_maps(np.tile(plain(), (2, 2)), (128, 128), ply_count=3, ply_twist_deg=35.0)
+    np.testing.assert_allclose(np.linalg.norm(small.tangent, axis=-1), 1.0, atol=1e-5)
+    np.testing.assert_allclose(big.tangent, np.tile(small.tangent, (2, 2, 1)), atol=1e-5)
+    # Plies change the fibre directions: not the same map as a single yarn.
+    single = woven_maps(plain(), (64, 64))
+    assert np.mean(np.abs(single.tangent - small.tangent)) > 0.05
+
+
+def test_ply_parameters_validated():
+    with pytest.raises(ParameterError, match="ply_count"):
+        woven_maps(plain(), 64, ply_count=0)
+    with pytest.raises(ParameterError, match="ply_twist_deg"):
+        woven_maps(plain(), 64, ply_count=2, ply_twist_deg=0.0)
+    with pytest.raises(ParameterError, match="yarn_width or gap_fraction"):
+        woven_maps(plain(), 64, yarn_width=0.5, gap_fraction=0.1)
+
+
+def test_generate_maps_refuses_parameters_it_does_not_take():
+    with pytest.raises(ParameterError, match="does not take colour_depth"):
+        generate_maps("plain", 64, colour_depth=3)
+
+
+def test_cli_maps_writes_everything_and_never_overwrites(tmp_path):
+    out = tmp_path / "twill"
+    cmd = [sys.executable, "-m", "mscloth", "maps", "twill-2-1", "--res", "96", "--out", str(out), "--plies", "2"]
+    first = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert first.returncode == 0, first.stderr
+    for name in ("maps.npz", "maps.json", "contact_sheet.png", "tangent.png", "gap.png", "albedo.png"):
+        assert (out / name).stat().st_size > 0, name
+    meta = json.loads((out / "maps.json").read_text())["meta"]
+    assert meta["ply_count"] == 2 and meta["generator"] == "woven"
+    before = (out / "maps.npz").read_bytes()
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert again.returncode != 0 and "--force" in again.stderr
+    assert (out / "maps.npz").read_bytes() == before
+
+
+def test_bsdf_takes_pattern_names_and_keeps_the_tile_aspect():
+    import mitsuba as mi
+
+    import mscloth
+    from mscloth.loading import load_dict
+
+    mscloth.register()
+    bsdf = load_dict({"type": "cloth", "pattern": "twill-2-1-S", "uv_scale": 4.0})
+    assert "192x192" in str(bsdf)
+    params = mi.traverse(bsdf)
+    assert abs(float(params["uv_scale_v"][0]) - 4.0) < 1e-6
