@@ -11,6 +11,7 @@ generator (`mscloth.maps.knit.knit_maps`) converts them to linear albedo.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from numbers import Integral
 from typing import Any
@@ -143,15 +144,49 @@ def _count(label: str, value: Any, lo: int) -> int:
     return int(value)
 
 
+def _named(stitches: np.ndarray, course_colors: Any, wale_colors: Any, name: str
+           ) -> KnitPattern:
+    """A named pattern; colour lists longer than the repeat tile the stitches to fit.
+
+    ``jersey(course_colors=[red, red, blue])`` is a 3-course striped jersey: the stitch
+    repeat is extended to the least common multiple of its size and the colour count.
+    """
+    reps = [1, 1]
+    for axis, colors in ((0, course_colors), (1, wale_colors)):
+        if colors is None:
+            continue
+        arr = np.asarray(colors, dtype=object)
+        if arr.ndim == 2 and arr.shape[0] >= 1:
+            n = stitches.shape[axis]
+            reps[axis] = math.lcm(n, arr.shape[0]) // n
+    stitches = np.tile(stitches, reps)
+    course_colors = _cycle(course_colors, stitches.shape[0])
+    wale_colors = _cycle(wale_colors, stitches.shape[1])
+    return KnitPattern(stitches, course_colors, wale_colors, name=name)
+
+
+def _cycle(colors: Any, count: int) -> Any:
+    """Repeat a (k, 3) colour list to ``count`` rows when k divides count; else unchanged."""
+    if colors is None:
+        return None
+    arr = np.asarray(colors, dtype=object)
+    if arr.ndim == 2 and arr.shape[0] >= 1 and count % arr.shape[0] == 0:
+        return np.tile(np.asarray(colors), (count // arr.shape[0], 1))
+    return colors
+
+
 def jersey(course_colors: Any = None, wale_colors: Any = None) -> KnitPattern:
-    """Single jersey (stockinette): every stitch knit; face shows columns of V's. 1x1 repeat."""
-    return KnitPattern(np.ones((1, 1), np.int8), course_colors, wale_colors, name="jersey")
+    """Single jersey (stockinette): every stitch knit; face shows columns of V's. 1x1 repeat.
+
+    Every named constructor takes ``course_colors`` / ``wale_colors`` (sRGB); a list of k
+    colours extends the repeat to a multiple of k courses / wales (stripes).
+    """
+    return _named(np.ones((1, 1), np.int8), course_colors, wale_colors, "jersey")
 
 
 def reverse_jersey(course_colors: Any = None, wale_colors: Any = None) -> KnitPattern:
     """The back of jersey: every stitch purl (rows of bumps). 1x1 repeat."""
-    return KnitPattern(np.zeros((1, 1), np.int8), course_colors, wale_colors,
-                       name="reverse_jersey")
+    return _named(np.zeros((1, 1), np.int8), course_colors, wale_colors, "reverse_jersey")
 
 
 def rib(k: int = 1, p: int = 1, course_colors: Any = None,
@@ -163,19 +198,18 @@ def rib(k: int = 1, p: int = 1, course_colors: Any = None,
     k = _count("rib: k (knit wales)", k, 1)
     p = _count("rib: p (purl wales)", p, 1)
     row = np.array([KNIT] * k + [PURL] * p, np.int8)[None, :]
-    return KnitPattern(row, course_colors, wale_colors, name=f"rib{k}x{p}")
+    return _named(row, course_colors, wale_colors, f"rib{k}x{p}")
 
 
 def garter(course_colors: Any = None, wale_colors: Any = None) -> KnitPattern:
     """Garter stitch: courses alternate all knit / all purl; repeat (2, 1)."""
-    return KnitPattern(np.array([[KNIT], [PURL]], np.int8), course_colors, wale_colors,
-                       name="garter")
+    return _named(np.array([[KNIT], [PURL]], np.int8), course_colors, wale_colors, "garter")
 
 
 def seed(course_colors: Any = None, wale_colors: Any = None) -> KnitPattern:
     """Seed (moss) stitch: knit and purl alternate along courses and wales; repeat (2, 2)."""
-    return KnitPattern(np.array([[KNIT, PURL], [PURL, KNIT]], np.int8), course_colors,
-                       wale_colors, name="seed")
+    return _named(np.array([[KNIT, PURL], [PURL, KNIT]], np.int8), course_colors,
+                  wale_colors, "seed")
 
 
 KNIT_PATTERNS = {"jersey": jersey, "reverse_jersey": reverse_jersey, "rib": rib,

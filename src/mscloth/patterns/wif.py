@@ -43,14 +43,12 @@ import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable
-
 import numpy as np
 
 from ..errors import PatternError
 from .draft import DEFAULT_SPACING_MM, DEFAULT_THICKNESS_MM, Draft
 
-__all__ = ["read_wif", "parse_wif", "UNIT_MM"]
+__all__ = ["read_wif", "parse_wif", "UNIT_MM", "MAX_THREADS", "MAX_SHAFTS"]
 
 #: Millimetres per WIF length unit. A decipoint is a tenth of a printer's point (1/72 in).
 UNIT_MM = {
@@ -80,6 +78,11 @@ _CHECKED_SECTIONS = (
     "THREADING", "TIEUP", "TREADLING", "LIFTPLAN", "WARP COLORS", "WEFT COLORS",
     "WARP SPACING", "WEFT SPACING", "WARP THICKNESS", "WEFT THICKNESS",
 )
+
+#: Sanity limits: far beyond any loom (jacquards have a few thousand hooks), small enough that
+#: a garbage count cannot make the drawdown allocate gigabytes.
+MAX_THREADS = 16384
+MAX_SHAFTS = 4096
 
 _INT_RE = re.compile(r"[+]?\d+\Z")
 _NUM_RE = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?\Z")
@@ -157,9 +160,7 @@ class _Wif:
             key, eq, value = line.partition("=")
             key, value = key.strip(), value.strip()
             if not eq or not key:
-                current.problems.append(
-                    (lineno, f"expected key=value, got {line!r}"
-                             + (" (the file ends here: truncated?)" if not eq else "")))
+                current.problems.append((lineno, f"expected key=value, got {line!r}"))
                 continue
             nkey = _norm(key)
             old = current.entries.get(nkey)
@@ -175,6 +176,8 @@ class _Wif:
                  for line, msg in self.sections[name].problems]
         if found:
             line, name, msg = min(found)
+            if line == self.last_line:      # a broken last line is what truncation looks like
+                msg += " (the file ends here: truncated?)"
             raise self.error(name, line, msg)
 
     # -- access ---------------------------------------------------------------------------
@@ -192,14 +195,14 @@ class _Wif:
             return False
         if entry.line == self.last_line:
             raise self.error(section, entry.line,
-                             f"expected {what} after {entry.key!r}=, got nothing (the file ends here: truncated?)")
+                             f"expected {what} after '{entry.key}=', got nothing (the file ends here: truncated?)")
         return True
 
     def int_value(self, section: str, entry: _Entry, what: str, lo: int = 1) -> int:
         text = entry.value
         if not text:
             self.empty_ok(section, entry, what)
-            raise self.error(section, entry.line, f"expected {what} after {entry.key!r}=, got nothing")
+            raise self.error(section, entry.line, f"expected {what} after '{entry.key}=', got nothing")
         if not _INT_RE.match(text):
             raise self.error(section, entry.line, f"expected {what} (a whole number), got {text!r}")
         value = int(text)
@@ -221,17 +224,17 @@ class _Wif:
             out.append(int(item))
         return out
 
-    def float_value(self, section: str, entry: _Entry, what: str, positive: bool = True) -> float:
+    def float_value(self, section: str, entry: _Entry, what: str) -> float:
         text = entry.value
         if not text:
             self.empty_ok(section, entry, what)
-            raise self.error(section, entry.line, f"expected {what} after {entry.key!r}=, got nothing")
+            raise self.error(section, entry.line, f"expected {what} after '{entry.key}=', got nothing")
         if _DECIMAL_COMMA_RE.match(text):       # "0,0185" from a decimal-comma locale
             text = text.replace(",", ".")
         if not _NUM_RE.match(text):
             raise self.error(section, entry.line, f"expected {what} (a number), got {entry.value!r}")
         value = float(text)
-        if not math.isfinite(value) or (positive and value <= 0.0):
+        if not math.isfinite(value) or value <= 0.0:
             raise self.error(section, entry.line, f"expected {what} > 0, got {entry.value!r}")
         return value
 
@@ -339,7 +342,13 @@ def _count(wif: _Wif, section: str) -> tuple[int | None, _Entry | None]:
     e = wif.get(section, "THREADS")
     if e is None:
         return None, None
-    return wif.int_value(section, e, "the number of threads"), e
+    return _capped(wif, section, e, wif.int_value(section, e, "the number of threads"), MAX_THREADS, "threads"), e
+
+
+def _capped(wif: _Wif, section: str, entry: _Entry, value: int, limit: int, what: str) -> int:
+    if value > limit:
+        raise wif.error(section, entry.line, f"{value} {what} is beyond the supported {limit}")
+    return value
 
 
 def _build(wif: _Wif, name: str) -> Draft:
@@ -378,10 +387,12 @@ def _build(wif: _Wif, name: str) -> Draft:
     rising = True
     e = wif.get("WEAVING", "SHAFTS")
     if e is not None:
-        n_shafts = wif.int_value("WEAVING", e, "the number of shafts")
+        n_shafts = _capped(wif, "WEAVING", e, wif.int_value("WEAVING", e, "the number of shafts"),
+                           MAX_SHAFTS, "shafts")
     e = wif.get("WEAVING", "TREADLES")
     if e is not None and e.value:      # liftplan-only files sometimes leave it empty / 0
-        n_treadles = wif.int_value("WEAVING", e, "the number of treadles", lo=0)
+        n_treadles = _capped(wif, "WEAVING", e, wif.int_value("WEAVING", e, "the number of treadles", lo=0),
+                             MAX_SHAFTS, "treadles")
     e = wif.get("WEAVING", "RISING SHED")
     if e is not None:
         rising = wif.bool_value("WEAVING", e)
@@ -395,10 +406,11 @@ def _build(wif: _Wif, name: str) -> Draft:
                         "section is empty: expected end=shaft lines (truncated file?)")
     thr_shafts = {i: wif.int_list("THREADING", e, "shaft") for i, e in threading.items.items()}
 
-    n_warp, warp_threads = _count(wif, "WARP")
+    n_warp, _ = _count(wif, "WARP")
     warp_explicit = n_warp is not None
     if n_warp is None:
         n_warp = max(threading.items) + 1
+        _capped(wif, "THREADING", threading.items[n_warp - 1], n_warp, MAX_THREADS, "warp ends")
     _limit_threads(wif, threading, n_warp, warp_explicit, "WARP")
     thr_shafts = {i: s for i, s in thr_shafts.items() if i in threading.items}
 
@@ -432,10 +444,11 @@ def _build(wif: _Wif, name: str) -> Draft:
         raise wif.error(lift_name, wif.sections[lift_name].line,
                         "section is empty: expected pick=... lines (truncated file?)")
 
-    n_weft, weft_threads = _count(wif, "WEFT")
+    n_weft, _ = _count(wif, "WEFT")
     weft_explicit = n_weft is not None
     if n_weft is None:
         n_weft = max(picks.items) + 1
+        _capped(wif, lift_name, picks.items[n_weft - 1], n_weft, MAX_THREADS, "weft picks")
     _limit_threads(wif, picks, n_weft, weft_explicit, "WEFT")
     pick_values = {i: v for i, v in pick_values.items() if i in picks.items}
 
@@ -451,7 +464,10 @@ def _build(wif: _Wif, name: str) -> Draft:
     base_note = (f"; shafts are numbered from 0 here because [{zero_shaft[0]}] line "
                  f"{zero_shaft[1].line} uses shaft 0" if zero_shaft is not None else "")
     if n_shafts is None:
-        n_shafts = max((s for _, _, s in shaft_uses), default=shaft_base) - shaft_base + 1
+        sec, e, top = max(shaft_uses, key=lambda u: u[2], default=("THREADING", None, shaft_base))
+        n_shafts = top - shaft_base + 1
+        if e is not None:
+            _capped(wif, sec, e, n_shafts, MAX_SHAFTS, "shafts")
         wif.warnings.append(f"no [WEAVING] Shafts: {n_shafts} inferred from the shafts used")
     for sec, e, s in shaft_uses:
         if s - shaft_base >= n_shafts:
@@ -466,7 +482,10 @@ def _build(wif: _Wif, name: str) -> Draft:
         t_note = (f"; treadles are numbered from 0 here because [{zero_t[0]}] line "
                   f"{zero_t[1].line} uses treadle 0" if zero_t is not None else "")
         if not n_treadles:
-            n_treadles = max(t for _, _, t in tread_uses) - tread_base + 1
+            sec, e, top = max(tread_uses, key=lambda u: u[2], default=("TIEUP", None, tread_base))
+            n_treadles = top - tread_base + 1
+            if e is not None:
+                _capped(wif, sec, e, n_treadles, MAX_SHAFTS, "treadles")
             wif.warnings.append(f"no [WEAVING] Treadles: {n_treadles} inferred from the treadles used")
         for sec, e, t in tread_uses:
             if t - tread_base >= n_treadles:
@@ -615,7 +634,8 @@ def _units(wif: _Wif, side: str) -> tuple[str | None, float]:
                 wif.section(f"{side} SPACING"), wif.section(f"{side} THICKNESS")]
         if any(u is not None for u in uses):
             wif.warnings.append(f"[{side}] has no Units: decipoints assumed")
-        return "Decipoints", UNIT_MM["DECIPOINTS"]
+            return "Decipoints", UNIT_MM["DECIPOINTS"]
+        return None, UNIT_MM["DECIPOINTS"]         # no lengths given: nothing to convert
     unit = _UNIT_ALIASES.get(_norm(e.value))
     if unit is None:
         raise wif.error(side, e.line, f"expected Units=Decipoints, Inches, Centimeters or Millimeters, got {e.value!r}")
