@@ -60,7 +60,7 @@ MAX_RESOLUTION = 16384
 MIN_TEXELS_PER_STITCH = 4
 _TABLE_X = 128          # initial-guess table: nodes per stitch period along u
 _TABLE_SAMPLES = 192    # curve samples per stitch period when building the table
-_NEWTON_STEPS = 1
+_NEWTON_STEPS = 2
 _TWO_PI = 2.0 * math.pi
 
 
