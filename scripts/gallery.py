@@ -31,7 +31,7 @@ def swatch_scene(pattern: str, color, tiles: float, resolution: int = 320) -> di
         "type": "scene",
         "integrator": {"type": "path", "max_depth": 8},
         "sensor": {"type": "perspective", "fov": 30,
-                   "to_world": T().look_at(origin=[0, 0.9, 3.2], target=[0, 0, 0], up=[0, 1, 0]),
+                   "to_world": T().look_at(origin=[0, 1.1, 4.4], target=[0, 0, 0], up=[0, 1, 0]),
                    "film": {"type": "hdrfilm", "width": resolution, "height": resolution}},
         "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [0.5, 0.55, 0.65]}},
         "sun": {"type": "directional", "direction": [-0.4, -0.5, -0.75],
@@ -54,7 +54,7 @@ def main() -> int:
     for label, (pattern, color, tiles) in PATTERNS.items():
         if label not in wanted:
             continue
-        maps = resolve_pattern(pattern)
+        maps = resolve_pattern(pattern, 256 if label == "jersey" else None)
         contact_sheet(preview_images(maps)).save(OUT / f"{label}_maps.png")
         image = render_progressive(load_dict(swatch_scene(pattern, color, tiles)), 64, label=label)
         write_images(image, OUT / f"{label}_render.exr")

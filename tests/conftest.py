@@ -7,3 +7,20 @@ import mscloth  # noqa: F401  (sets DRJIT_LIBLLVM_PATH)
 import mitsuba as mi
 
 mi.set_variant("llvm_ad_rgb")
+
+import gc
+
+import pytest
+
+
+@pytest.fixture(autouse=True)
+def _collect_garbage():
+    """Free unreachable plugin instances between tests.
+
+    Dr.Jit traces a virtual call by calling into every registered BSDF instance; if the
+    garbage collector frees an unreachable Python-defined instance (kept alive only by a
+    reference cycle, e.g. a traceback) in the middle of such a trace, the trace calls a
+    freed object. Collecting between tests keeps the registry free of such instances.
+    """
+    yield
+    gc.collect()

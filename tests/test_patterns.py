@@ -145,3 +145,18 @@ def test_bsdf_takes_pattern_names_and_keeps_the_tile_aspect():
     assert "192x192" in str(bsdf)
     params = mi.traverse(bsdf)
     assert abs(float(params["uv_scale_v"][0]) - 4.0) < 1e-6
+
+
+def test_bsdf_takes_wif_files_and_knits(tmp_path):
+    from pathlib import Path
+
+    import mscloth
+    from mscloth.loading import load_dict
+
+    mscloth.register()
+    wif = Path(__file__).resolve().parents[2] / "shared" / "data" / "wif" / "2229.wif"
+    assert "1024x1024" in str(load_dict({"type": "cloth", "pattern": str(wif)}))
+    jersey = load_dict({"type": "cloth", "pattern": "jersey", "resolution": 64})
+    assert "64x" in str(jersey)
+    with pytest.raises(PatternError, match="does not exist"):
+        load_dict({"type": "cloth", "pattern": str(tmp_path / "missing.wif")})

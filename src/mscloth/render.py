@@ -1,6 +1,7 @@
 """Rendering with progress, and writing images without leaving half-written files."""
 from __future__ import annotations
 
+import gc
 import sys
 import time
 from pathlib import Path
@@ -37,6 +38,9 @@ def render_progressive(scene, spp: int, passes: int | None = None, seed: int = 0
     while spp % passes:
         passes -= 1
     per_pass = spp // passes
+    # Free unreachable plugin instances first: Dr.Jit traces a virtual call through every
+    # registered BSDF, and one freed by the garbage collector mid-trace crashes it.
+    gc.collect()
     started = time.perf_counter()
     total = None
     for i in range(passes):

@@ -133,10 +133,14 @@ def make_cloth_class():
         __doc__ = DOCSTRING
 
         def __init__(self, props):
-            mi.BSDF.__init__(self, props)
+            # Validate everything before the C++ base is constructed: a base that is
+            # constructed (and registered for virtual calls) by an __init__ that then raises
+            # leaves a dangling registry entry, and a later render crashes on it.
             p = read_parameters(props)
+            maps = resolve_pattern(p.pattern, p.resolution)
+            mi.BSDF.__init__(self, props)
             self.pattern = p.pattern
-            self.maps = resolve_pattern(p.pattern, p.resolution)
+            self.maps = maps
             self.uv_scale = mi.Float(p.uv_scale)
             # Square UV units see the tile at its physical aspect unless told otherwise.
             width_mm, height_mm = self.maps.meta.get("tile_size_mm", (1.0, 1.0))

@@ -43,6 +43,13 @@ Peirce / Leaf loop models, not a quote of the paper):
   colour (course colours win over wale colours), sRGB converted to linear.
 
 Everything is a periodic function of (u, v) sampled at texel centres: the tile is seamless.
+
+Approximations: yarns are round, rigid tubes that may interpenetrate (at the default
+yarn_width neighbouring wales' legs overlap in projection; the higher surface wins), with no
+flattening where they press together; the fabric does not curl or fold (the purl wales of a
+rib do not recede, garter courses are not compressed); the nearest-point search can settle
+on a slightly farther local minimum on a few texels where two branches are almost equally
+near a texel at the yarn's edge (inside tight arcs), which shifts the tangent there.
 """
 from __future__ import annotations
 
@@ -60,8 +67,11 @@ MAX_RESOLUTION = 16384
 MIN_TEXELS_PER_STITCH = 4
 _TABLE_X = 128          # initial-guess table: nodes per stitch period along u
 _TABLE_SAMPLES = 192    # curve samples per stitch period when building the table
-_NEWTON_STEPS = 2
+_NEWTON_STEPS = 3
 _TWO_PI = 2.0 * math.pi
+# Largest A with T + A sin 2T >= 0 on [0, pi] (minimum of -T / sin 2T there): the left leg
+# never crosses x = 0, i.e. a loop's legs stay inside its own wale's [0, 1] strip.
+_AMP_MAX = 2.3016
 
 
 # ---------------------------------------------------------------- argument checks
@@ -144,7 +154,7 @@ class _Curve:
             speed2 = px * px + py * py
             hess = speed2 + dx * ppx + dy * ppy
             # Newton where the objective is convex, a gradient step (Gauss-Newton) elsewhere.
-            denom = np.where(hess > 0.25 * speed2, hess, speed2)
+            denom = np.where(hess > 0.05 * speed2, hess, speed2)
             T = T - np.clip(g / denom, -0.25, 0.25)
         x, y = self.xy(T)
         return T, x - qx, y - qy
@@ -154,11 +164,17 @@ class _Curve:
 
 
 def _guess_table(curve: _Curve, ext: float) -> tuple[np.ndarray, float, int]:
-    """Nearest-sample T over fx in [0, 1) x y in [-ext, ext]; returns (table, dy, ny)."""
+    """Nearest-sample T over fx in [0, 1) x y in [-ext, ext]; returns (table, dy, ny).
+
+    Row iy is y = -ext + iy * dy; column ix is the cell fx in [ix, ix + 1) / nx.
+    """
     nx = _TABLE_X
     ny = max(2, int(math.ceil(2.0 * ext * nx)) + 1)
     step_y = 2.0 * ext / (ny - 1)
-    qx = np.arange(nx) / nx
+    # Nodes at cell centres: with nx even, the loop's mirror lines x = 0 and x = 1/2 (where
+    # the left and right legs, or two sinker halves, are equally near) are cell borders, so
+    # a texel's cell node is always on the texel's side of them.
+    qx = (np.arange(nx) + 0.5) / nx
     qy = -ext + np.arange(ny) * step_y
     # Samples over T in [-pi, 3pi): the stitch period under fx plus half a period each side
     # (the curve stays within x in [k, k + 1] for T in [2 pi k, 2 pi (k + 1)]).
@@ -216,7 +232,9 @@ def knit_maps(pattern: Any, resolution: int | tuple[int, int] = 256, *,
         loop_height: centreline loop height (sinker to head) / course spacing, in [1, 3]:
             how far each loop reaches into its neighbouring courses.
         leg_tilt_deg: angle of the stitch legs to the wale direction at their midpoints, in
-            [0, 45] degrees.
+            [0, 45] degrees, and small enough that the legs stay inside their wale (about
+            43 degrees at the default loop shape, less for taller loops; ParameterError
+            says the limit).
         yarn_height: peak-to-peak centreline depth (front layer to back layer) / wale
             spacing, in (0, 2]; default ``yarn_width`` (layers one yarn diameter apart).
         fibre_twist_deg: fibre angle to the yarn axis in degrees, [-90, 90]; > 0 is an S
@@ -246,6 +264,11 @@ def knit_maps(pattern: Any, resolution: int | tuple[int, int] = 256, *,
     d = 0.5 * yh
     h = 0.5 * lh * a
     amp = 0.5 * (1.0 + _TWO_PI * h * math.tan(math.radians(tilt)))
+    if amp > _AMP_MAX:
+        most = math.degrees(math.atan((2.0 * _AMP_MAX - 1.0) / (_TWO_PI * h)))
+        raise ParameterError(f"leg_tilt_deg {tilt:g} is too large for loop_aspect {a:g} and "
+                             f"loop_height {lh:g}: the legs would cross into the neighbouring "
+                             f"wales (at most {most:.1f} degrees here)")
     curve = _Curve(amp, h)
     ext = h + r                                  # half-height of a course's yarn band
     table, step_y, ny = _guess_table(curve, ext)
@@ -258,7 +281,7 @@ def knit_maps(pattern: Any, resolution: int | tuple[int, int] = 256, *,
     jc = np.floor(X)
     fx = X - jc
     jc = jc.astype(np.int64)
-    ix = np.rint(fx * _TABLE_X).astype(np.int64) % _TABLE_X
+    ix = np.minimum(np.floor(fx * _TABLE_X).astype(np.int64), _TABLE_X - 1)
     Yall = (np.arange(H) + 0.5) * (nc * a / H)
     kb = np.floor(Yall / a).astype(np.int64)       # course whose cell holds the row
 
