@@ -160,3 +160,24 @@ def test_bsdf_takes_wif_files_and_knits(tmp_path):
     assert "64x" in str(jersey)
     with pytest.raises(PatternError, match="does not exist"):
         load_dict({"type": "cloth", "pattern": str(tmp_path / "missing.wif")})
+
+
+@pytest.mark.parametrize("pattern", ["jersey", "rib-2-2", "WIF"])
+def test_cli_maps_takes_knits_and_wif_files(tmp_path, pattern):
+    from pathlib import Path
+
+    if pattern == "WIF":
+        pattern = str(Path(__file__).resolve().parents[2] / "shared" / "data" / "wif" / "8452.wif")
+    out = tmp_path / "maps"
+    result = subprocess.run([sys.executable, "-m", "mscloth", "maps", pattern, "--res", "256", "--out", str(out)],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    meta = json.loads((out / "maps.json").read_text())["meta"]
+    assert meta["generator"] in ("woven", "knit")
+    assert (out / "contact_sheet.png").stat().st_size > 0
+
+
+def test_drawdown_array_directly():
+    maps = generate_maps(np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1]]), 96)
+    assert maps.resolution == (96, 96)
+    assert maps.meta["drawdown"] == [[1, 0, 0], [0, 1, 0], [0, 0, 1]]

@@ -54,7 +54,7 @@ near a texel at the yarn's edge (inside tight arcs), which shifts the tangent th
 from __future__ import annotations
 
 import math
-from numbers import Integral, Real
+from numbers import Integral
 from typing import Any
 
 import numpy as np
@@ -62,6 +62,7 @@ import numpy as np
 from ..errors import ParameterError, PatternError
 from ..patterns.knit import KnitPattern, validate_stitches
 from .cloth_maps import ClothMaps
+from .generator_support import height_normal, real_in, srgb_to_linear
 
 MAX_RESOLUTION = 16384
 MIN_TEXELS_PER_STITCH = 4
@@ -75,19 +76,6 @@ _AMP_MAX = 2.3016
 
 
 # ---------------------------------------------------------------- argument checks
-def _real_in(name: str, value: Any, lo: float, hi: float, lo_open: bool, hi_open: bool) -> float:
-    """Return ``value`` as a float inside the stated interval, or raise ParameterError."""
-    interval = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
-    if isinstance(value, bool) or not isinstance(value, Real):
-        raise ParameterError(f"{name} must be a real number in {interval}, got {value!r}")
-    x = float(value)
-    below = x <= lo if lo_open else x < lo
-    above = x >= hi if hi_open else x > hi
-    if math.isnan(x) or below or above:
-        raise ParameterError(f"{name} must be in {interval}, got {value!r}")
-    return x
-
-
 def _resolution(resolution: Any, aspect: float, n_courses: int, n_wales: int
                 ) -> tuple[int, int]:
     """An int is the width in texels (height follows the tile aspect); (H, W) is exact."""
@@ -118,12 +106,6 @@ def _as_pattern(pattern: Any) -> KnitPattern:
                            f"string {pattern!r} (use mscloth.patterns.knit.{pattern}() or "
                            f"similar)")
     return KnitPattern(validate_stitches(pattern))
-
-
-def srgb_to_linear(c: Any) -> np.ndarray:
-    """The standard sRGB EOTF: display colours in [0, 1] -> linear values in [0, 1]."""
-    c = np.asarray(c, dtype=np.float64)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
 # ---------------------------------------------------------------- the course curve
@@ -207,14 +189,6 @@ def _depth(tl, sig, sig_above, sig_left, sig_right, d):
     return np.where(head, z_head, z_sink), np.where(head, dz_head, dz_sink)
 
 
-def _height_normal(height: np.ndarray, du: float, dv: float) -> np.ndarray:
-    """Unit normals (z > 0) of a periodic height field; du, dv = texel size (tile widths)."""
-    dhdu = (np.roll(height, -1, axis=1) - np.roll(height, 1, axis=1)) / (2.0 * du)
-    dhdv = (np.roll(height, -1, axis=0) - np.roll(height, 1, axis=0)) / (2.0 * dv)
-    n = np.stack([-dhdu, -dhdv, np.ones_like(height)], axis=-1)
-    return n / np.linalg.norm(n, axis=-1, keepdims=True)
-
-
 # ---------------------------------------------------------------- the generator
 def knit_maps(pattern: Any, resolution: int | tuple[int, int] = 256, *,
               yarn_width: float = 0.45, loop_aspect: float = 0.8, loop_height: float = 1.5,
@@ -248,14 +222,14 @@ def knit_maps(pattern: Any, resolution: int | tuple[int, int] = 256, *,
     pat = _as_pattern(pattern)
     stitches = pat.stitches
     nc, nw = stitches.shape
-    w = _real_in("yarn_width", yarn_width, 0.0, 1.0, lo_open=True, hi_open=False)
-    a = _real_in("loop_aspect", loop_aspect, 0.3, 3.0, False, False)
-    lh = _real_in("loop_height", loop_height, 1.0, 3.0, False, False)
-    tilt = _real_in("leg_tilt_deg", leg_tilt_deg, 0.0, 45.0, False, False)
-    yh = w if yarn_height is None else _real_in("yarn_height", yarn_height, 0.0, 2.0,
+    w = real_in("yarn_width", yarn_width, 0.0, 1.0, lo_open=True, hi_open=False)
+    a = real_in("loop_aspect", loop_aspect, 0.3, 3.0, False, False)
+    lh = real_in("loop_height", loop_height, 1.0, 3.0, False, False)
+    tilt = real_in("leg_tilt_deg", leg_tilt_deg, 0.0, 45.0, False, False)
+    yh = w if yarn_height is None else real_in("yarn_height", yarn_height, 0.0, 2.0,
                                                   lo_open=True, hi_open=False)
-    twist = _real_in("fibre_twist_deg", fibre_twist_deg, -90.0, 90.0, False, False)
-    mm = _real_in("wale_spacing_mm", wale_spacing_mm, 0.0, math.inf, True, True)
+    twist = real_in("fibre_twist_deg", fibre_twist_deg, -90.0, 90.0, False, False)
+    mm = real_in("wale_spacing_mm", wale_spacing_mm, 0.0, math.inf, True, True)
     aspect = nc * a / nw
     H, W = _resolution(resolution, aspect, nc, nw)
     psi = math.radians(twist)
@@ -368,7 +342,7 @@ def knit_maps(pattern: Any, resolution: int | tuple[int, int] = 256, *,
         "wale_spacing_mm": mm,
         "stitch_colors": rgb.tolist(),
     }
-    return ClothMaps(tangent=tangent, normal=_height_normal(height, 1.0 / W, aspect / H),
+    return ClothMaps(tangent=tangent, normal=height_normal(height, 1.0 / W, aspect / H),
                      height=height, gap=yarn.astype(np.float32),
                      yarn_id=course.astype(np.int32), albedo=albedo, meta=meta)
 

@@ -30,7 +30,7 @@ Everything is a periodic function of (u, v) sampled at texel centres, so the til
 from __future__ import annotations
 
 import math
-from numbers import Integral, Real
+from numbers import Integral
 from typing import Any
 
 import numpy as np
@@ -39,22 +39,10 @@ from ..errors import ParameterError
 from ..patterns.draft import Draft
 from ..patterns.weaves import validate_drawdown
 from .cloth_maps import ClothMaps
+from .generator_support import height_normal, real_in, srgb_to_linear
 
 MAX_RESOLUTION = 16384
 MIN_TEXELS_PER_THREAD = 2
-
-
-def _real_in(name: str, value: Any, lo: float, hi: float, lo_open: bool, hi_open: bool) -> float:
-    """Return ``value`` as a float inside the stated interval, or raise ParameterError."""
-    interval = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
-    if isinstance(value, bool) or not isinstance(value, Real):
-        raise ParameterError(f"{name} must be a real number in {interval}, got {value!r}")
-    x = float(value)
-    below = x <= lo if lo_open else x < lo
-    above = x >= hi if hi_open else x > hi
-    if math.isnan(x) or below or above:
-        raise ParameterError(f"{name} must be in {interval}, got {value!r}")
-    return x
 
 
 def _resolution(resolution: Any, n_weft: int, n_warp: int) -> tuple[int, int]:
@@ -109,21 +97,6 @@ def _twisted_tangent(along: np.ndarray, across: np.ndarray, slope: np.ndarray, s
     t = math.cos(psi) * axis + math.sin(psi) * np.cross(n_y, axis)
     t /= np.linalg.norm(t, axis=-1, keepdims=True)
     return t, axis
-
-
-def _height_normal(height: np.ndarray) -> np.ndarray:
-    """Unit normals (z > 0) of a periodic height field by central differences."""
-    h, w = height.shape
-    dhdu = (np.roll(height, -1, axis=1) - np.roll(height, 1, axis=1)) * (w / 2.0)
-    dhdv = (np.roll(height, -1, axis=0) - np.roll(height, 1, axis=0)) * (h / 2.0)
-    n = np.stack([-dhdu, -dhdv, np.ones_like(height)], axis=-1)
-    return n / np.linalg.norm(n, axis=-1, keepdims=True)
-
-
-def srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    """The sRGB transfer function, inverted: display colours -> linear albedo."""
-    c = np.asarray(c, dtype=np.float64)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
 def _as_draft(pattern: Any) -> Draft:
@@ -224,20 +197,20 @@ def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
     if yarn_width is not None and gap_fraction is not None:
         raise ParameterError("give yarn_width or gap_fraction, not both")
     if gap_fraction is not None:
-        g = _real_in("gap_fraction", gap_fraction, 0.0, 1.0, lo_open=False, hi_open=True)
+        g = real_in("gap_fraction", gap_fraction, 0.0, 1.0, lo_open=False, hi_open=True)
         yarn_width = 1.0 - math.sqrt(g)
     if yarn_width is not None:
-        w = _real_in("yarn_width", yarn_width, 0.0, 1.0, lo_open=True, hi_open=False)
+        w = real_in("yarn_width", yarn_width, 0.0, 1.0, lo_open=True, hi_open=False)
         warp_width, weft_width = w * draft.warp_spacing, w * draft.weft_spacing
     else:
         warp_width = np.minimum(draft.warp_thickness, draft.warp_spacing)
         weft_width = np.minimum(draft.weft_thickness, draft.weft_spacing)
-    yh = _real_in("yarn_height", yarn_height, 0.0, 2.0, lo_open=True, hi_open=False)
-    p_exp = _real_in("profile_exponent", profile_exponent, 1.0, 16.0, False, False)
-    twist = _real_in("fibre_twist_deg", fibre_twist_deg, -90.0, 90.0, False, False)
+    yh = real_in("yarn_height", yarn_height, 0.0, 2.0, lo_open=True, hi_open=False)
+    p_exp = real_in("profile_exponent", profile_exponent, 1.0, 16.0, False, False)
+    twist = real_in("fibre_twist_deg", fibre_twist_deg, -90.0, 90.0, False, False)
     if isinstance(ply_count, bool) or not isinstance(ply_count, Integral) or not 1 <= ply_count <= 8:
         raise ParameterError(f"ply_count must be an integer in [1, 8], got {ply_count!r}")
-    beta = math.radians(_real_in("ply_twist_deg", ply_twist_deg, 0.0, 90.0, True, True)) if ply_count > 1 else 0.0
+    beta = math.radians(real_in("ply_twist_deg", ply_twist_deg, 0.0, 90.0, True, True)) if ply_count > 1 else 0.0
     warp_rgb = _colors("warp_colors", warp_colors, n_warp) if warp_colors is not None else srgb_to_linear(draft.warp_colors)
     weft_rgb = _colors("weft_colors", weft_colors, n_weft) if weft_colors is not None else srgb_to_linear(draft.weft_colors)
     psi = math.radians(twist)
@@ -344,7 +317,7 @@ def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
         "warp_colors": np.asarray(warp_rgb).tolist(),
         "weft_colors": np.asarray(weft_rgb).tolist(),
     }
-    return ClothMaps(tangent=tangent, normal=_height_normal(height), height=height,
+    return ClothMaps(tangent=tangent, normal=height_normal(height, 1.0 / W, (height_mm / width_mm) / H), height=height,
                      gap=yarn.astype(np.float32), yarn_id=yarn_id.astype(np.int32),
                      albedo=albedo, meta=meta)
 
