@@ -77,3 +77,26 @@ def cloth_chi2_adapter(bsdf: dict, wi, uv, ctx):
         return plugin.pdf(ctx, make_si_for(dr.width(wo)), wo)
 
     return sample_func, pdf_func
+
+
+def footprint_chi2_adapter(bsdf: dict, wi, uv, ctx, half_texels: float):
+    """:func:`cloth_chi2_adapter` with a square pixel footprint of ``half_texels`` texels
+    (si.duv_dx / si.duv_dy set as the clothpath integrator does)."""
+    d = 2.0 * half_texels / N_TEXELS
+
+    def make(n):
+        si = make_si(mi.Vector3f(wi), mi.Point2f(uv), n)
+        si.duv_dx = mi.Vector2f(d, 0.0)
+        si.duv_dy = mi.Vector2f(0.0, d)
+        return si
+
+    def sample_func(sample, *args):
+        plugin = mi.load_dict(bsdf)
+        bs, _ = plugin.sample(ctx, make(dr.width(sample)), sample[0], mi.Point2f(sample[1], sample[2]))
+        return bs.wo, dr.select(bs.pdf > 0.0, 1.0, 0.0)
+
+    def pdf_func(wo, *args):
+        plugin = mi.load_dict(bsdf)
+        return plugin.pdf(ctx, make(dr.width(wo)), wo)
+
+    return sample_func, pdf_func

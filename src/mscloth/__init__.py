@@ -17,10 +17,13 @@ configure_llvm()
 
 
 def register() -> None:
-    """Register mscloth's Mitsuba plugins for the active variant (idempotent)."""
+    """Register mscloth's Mitsuba plugins (the ``cloth`` BSDF and the ``clothpath``
+    integrator) for the active variant (idempotent)."""
     from .bsdf.registry import register_plugins
+    from .integrators import register_integrators
 
     register_plugins()
+    register_integrators()
 
 
 __all__ = [

@@ -11,7 +11,9 @@ import mitsuba as mi
 import numpy as np
 
 from ..maps.builtin import resolve_pattern
-from ..scattering import sheen, spongecake
+from ..scattering import sggx, sheen, spongecake
+from .footprint_data import FootprintData
+from .sat_queries import hemisphere_bins
 from .parameters import FLOAT_PARAMETERS, SPECTRUM_PARAMETERS, read_parameters
 
 # Component indices, in the order of ``m_components``.
@@ -151,6 +153,15 @@ def make_cloth_class():
             self.sheen_thickness = mi.Float(p.sheen_thickness)
             self.textures = p.textures
             self._upload_maps(self.maps)
+            self.multiscale = p.multiscale
+            self.use_visibility = p.visibility
+            self.footprint_data = None
+            if p.multiscale or p.visibility:
+                from ..precompute.tables import load_or_build
+
+                tables = load_or_build(self.maps, p.roughness, dr=p.direction_bins, dv=p.visibility_bins,
+                                       clusters=p.clusters, per_cluster_sat=p.unbiased_ccv)
+                self.footprint_data = FootprintData(tables, with_sats=p.multiscale)
 
             flags = 0
             for f in lobe_flags:
@@ -165,34 +176,59 @@ def make_cloth_class():
             # Nearest lookups: the fibre-level BSDF sees exactly one texel.
             self.fibre_texture = mi.Texture2f(mi.TensorXf(fibre), **kwargs)
             self.color_texture = mi.Texture2f(mi.TensorXf(color), **kwargs)
+            self.tile_h, self.tile_w = maps.resolution
 
         # ------------------------------------------------------------------
-        # Shading-point state shared by sample / eval / pdf
+        # Shading state: the viewer's frame, a texel, a footprint
         # ------------------------------------------------------------------
-        def _point(self, ctx, si, active):
-            """Everything that depends on the shading point and wi, in the mirrored
-            frame where the viewer is above the surface."""
+        def _frame(self, si, active):
+            """Quantities of the shading point that do not depend on the texel, in the
+            mirrored frame where the viewer is above the surface."""
             flip = si.wi.z < 0.0
             sign = dr.select(flip, -1.0, 1.0)
             wi = mi.Vector3f(si.wi.x, si.wi.y, sign * si.wi.z)
-
-            pos = mi.Point2f(si.uv.x * self.uv_scale, si.uv.y * self.uv_scale_v)
-            fibre = self.fibre_texture.eval(pos, active)
-            color = self.color_texture.eval(pos, active)
-            tangent = mi.Vector3f(fibre[0], fibre[1], sign * fibre[2])
-            yarn = fibre[3]                       # I(x): 1 on a yarn, 0 in a gap
-            yarn_albedo = mi.Color3f(color[0], color[1], color[2])
-
             k = {name: self.textures[name].eval(si, active) for name in SPECTRUM_PARAMETERS}
+            t_sheen_i = sheen.sheen_transmittance(wi, self.sheen_roughness, self.sheen_thickness)
+            # Texel coordinates of si.uv: one tile is tile_w x tile_h texels.
+            x = si.uv.x * self.uv_scale * self.tile_w
+            y = si.uv.y * self.uv_scale_v * self.tile_h
+            return dict(flip=flip, sign=sign, wi=wi, k=k, t_sheen_i=t_sheen_i, x=x, y=y, active=active)
+
+        def _texel(self, fr, x, y):
+            """The point (fibre-level) state at texel coordinates (x, y) (periodic)."""
+            pos = mi.Point2f(x / self.tile_w, y / self.tile_h)
+            fibre = self.fibre_texture.eval(pos, fr["active"])
+            color = self.color_texture.eval(pos, fr["active"])
+            tangent = mi.Vector3f(fibre[0], fibre[1], fr["sign"] * fibre[2])
+            yarn_albedo = mi.Color3f(color[0], color[1], color[2])
+            k = dict(fr["k"])
             for name in ("specular_albedo", "specular_transmittance", "diffuse_albedo", "diffuse_transmittance"):
                 k[name] = k[name] * yarn_albedo
-            t_sheen_i = sheen.sheen_transmittance(wi, self.sheen_roughness, self.sheen_thickness)
-            return dict(flip=flip, sign=sign, wi=wi, tangent=tangent, yarn=yarn, k=k, t_sheen_i=t_sheen_i)
+            # The texel the nearest lookups read (the same wrap as the textures).
+            ix = mi.UInt32(dr.clip(dr.floor((pos.x - dr.floor(pos.x)) * self.tile_w), 0, self.tile_w - 1))
+            iy = mi.UInt32(dr.clip(dr.floor((pos.y - dr.floor(pos.y)) * self.tile_h), 0, self.tile_h - 1))
+            return dict(fr, tangent=tangent, yarn=fibre[3], k=k, ix=ix, iy=iy)
+
+        def _footprint(self, si, fr):
+            """The pixel footprint as a texel rectangle, and whether to shade it as one.
+
+            Convention: the footprint is the axis-aligned UV rectangle centred on si.uv
+            with half-widths 1/2(|du/dx| + |du/dy|) and 1/2(|dv/dx| + |dv/dy|). Footprints
+            whose half-widths are both <= 1/2 texel are shaded as the texel (fibre level);
+            larger ones are at least one texel wide in each direction.
+            """
+            rx = 0.5 * (dr.abs(si.duv_dx.x) + dr.abs(si.duv_dy.x)) * self.uv_scale * self.tile_w
+            ry = 0.5 * (dr.abs(si.duv_dx.y) + dr.abs(si.duv_dy.y)) * self.uv_scale_v * self.tile_h
+            use = (dr.maximum(rx, ry) > 0.5) & dr.isfinite(rx) & dr.isfinite(ry)
+            rx = dr.select(use, dr.maximum(rx, 0.5), 0.5)
+            ry = dr.select(use, dr.maximum(ry, 0.5), 0.5)
+            return dict(use=use, x0=fr["x"] - rx, x1=fr["x"] + rx, y0=fr["y"] - ry, y1=fr["y"] + ry,
+                        area=4.0 * rx * ry, rx=rx, ry=ry)
 
         def _enabled(self, ctx):
             return [ctx.is_enabled(lobe_types[c], c) for c in range(6)]
 
-        def _lobe_probabilities(self, ctx, pt, enabled):
+        def _lobe_probabilities(self, pt, enabled):
             """Selection probabilities, proportional to each lobe's estimated albedo."""
             k, wi, yarn, ts = pt["k"], pt["wi"], pt["yarn"], pt["t_sheen_i"]
             zero = dr.zeros(mi.Float, dr.width(wi))
@@ -216,8 +252,29 @@ def make_cloth_class():
             inv = dr.select(total > 0.0, dr.rcp(total), 0.0)
             return [wk * inv for wk in w]
 
-        def _eval_pdf_local(self, ctx, pt, wo, enabled, probs, want_pdf=True):
-            """Non-delta f*|cos o| and pdf for a mirrored-frame outgoing direction."""
+        def _visibility(self, pt, wo):
+            """V(p, i, o) of the texel: shadowing x masking by the cloth's height field.
+            The viewer's side uses the front table, mirrored when the viewer is below."""
+            if self.footprint_data is None:
+                return mi.Float(1.0)
+            fd = self.footprint_data
+            up = wo.z > 0.0
+            v_i = fd.visibility_at(pt["ix"], pt["iy"], pt["wi"], pt["flip"])
+            wo_up = mi.Vector3f(wo.x, wo.y, dr.abs(wo.z))
+            # The viewer's side for reflection, the other side for transmission.
+            v_o = fd.visibility_at(pt["ix"], pt["iy"], wo_up, pt["flip"] == up)
+            return v_i * v_o
+
+        def _cluster_visibility(self, cluster, pt, wo):
+            """The visibility cluster's mean of V(i) times its mean of V(o)."""
+            fd = self.footprint_data
+            up = wo.z > 0.0
+            wo_up = mi.Vector3f(wo.x, wo.y, dr.abs(wo.z))
+            return (fd.cluster_visibility(cluster, pt["wi"], pt["flip"])
+                    * fd.cluster_visibility(cluster, wo_up, pt["flip"] == up))
+
+        def _eval_pdf_point(self, pt, wo, enabled, probs, want_pdf=True):
+            """Fibre-level (one texel) non-delta f*|cos o| and pdf, mirrored frame."""
             wi, t, yarn, k = pt["wi"], pt["tangent"], pt["yarn"], pt["k"]
             cos_o = wo.z
             up = cos_o > 0.0
@@ -252,23 +309,146 @@ def make_cloth_class():
                 transmission += k["diffuse_transmittance"] * cosine
                 if want_pdf:
                     pdf += probs[DIFFUSE_TRANSMISSION] * dr.select(up, 0.0, cosine)
-            value += under_fuzz * dr.select(up, reflection, transmission)
+            yarn_lobes = dr.select(up, reflection, transmission)
+            if self.use_visibility:
+                yarn_lobes *= self._visibility(pt, wo)
+            value += under_fuzz * yarn_lobes
             value = dr.select(valid, value, 0.0)
             pdf = dr.select(valid, pdf, 0.0)
             return value, pdf
 
-        def _mirror(self, pt, wo):
-            return mi.Vector3f(wo.x, wo.y, pt["sign"] * wo.z)
+        def _eval_footprint(self, fr, fp, wo, enabled, xi):
+            """Footprint-averaged non-delta f*|cos o| (Eq. 9-14 with CCV), mirrored frame.
 
-        # ------------------------------------------------------------------
-        # mi.BSDF interface
-        # ------------------------------------------------------------------
-        def sample(self, ctx, si, sample1, sample2, active=True):
-            enabled = self._enabled(ctx)
-            pt = self._point(ctx, si, active)
-            probs = self._lobe_probabilities(ctx, pt, enabled)
+            ``xi`` (2D in [0,1)) places the texel of the control-variate residual.
+            """
+            fd = self.footprint_data
+            sats = fd.scalar_sats
+            wi = fr["wi"]
+            k = fr["k"]
+            cos_o = wo.z
+            up = cos_o > 0.0
+            valid = (wi.z > spongecake.COS_EPSILON) & (dr.abs(cos_o) > spongecake.COS_EPSILON)
+            inv_area = dr.rcp(fp["area"])
+
+            def mean(sat, channel):
+                return sat.rect_integral(channel, fp["x0"], fp["y0"], fp["x1"], fp["y1"]) * inv_area
+
+            yarn_mean = mean(sats, fd.GAP)
+            inv_yarn = dr.select(yarn_mean > 1e-6, dr.rcp(yarn_mean), 0.0)
+            yarn_albedo = mi.Color3f(*[mean(sats, fd.ALBEDO + c) * inv_yarn for c in range(3)])
+
+            # The texel of the control-variate residual, uniform in the footprint.
+            p = self._texel(fr, fp["x0"] + xi.x * (fp["x1"] - fp["x0"]), fp["y0"] + xi.y * (fp["y1"] - fp["y0"]))
+            if self.use_visibility:
+                cluster = fd.cluster_of(p["ix"], p["iy"])
+                v_p = self._visibility(p, wo)
+                vbar_p = self._cluster_visibility(cluster, p, wo)
+
+            value = mi.Color3f(0.0)
+            if enabled[SHEEN]:
+                value += sheen.eval_sheen(wi, wo, self.sheen_roughness, self.sheen_thickness) * k["sheen_color"]
+            reflection = mi.Color3f(0.0)
+            transmission = mi.Color3f(0.0)
+            if enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]:
+                h = dr.normalize(wi + wo)
+                h = dr.select(h.z < 0.0, -h, h)  # D is even
+                bins, weights = hemisphere_bins(h, fd.dr)
+                d_yarn = mi.Float(0.0)  # mean over P of D(h, t) I
+                for b, wt in zip(bins, weights):
+                    d_yarn += wt * mean(fd.d_sat, b)
+                if self.use_visibility:
+                    if fd.per_cluster:
+                        base = mi.Float(0.0)
+                        n_bins = fd.dr * fd.dr
+                        for c in range(fd.clusters):
+                            d_c = mi.Float(0.0)
+                            for b, wt in zip(bins, weights):
+                                d_c += wt * mean(fd.d_sat_cluster, c * n_bins + b)
+                            base += self._cluster_visibility(mi.UInt32(c), p, wo) * d_c
+                    else:
+                        base = d_yarn * vbar_p
+                    d_p = sggx.ndf(h, p["tangent"], self.roughness) * p["yarn"]
+                    # An unbiased control-variate estimate: it can dip below zero for one
+                    # residual texel (V(p) = 0 under a bright base); clamping it biased
+                    # grazing highlights by up to +90% (docs/decisions.md), so we do not.
+                    d_visible = base + d_p * (v_p - vbar_p)
+                else:
+                    d_visible = d_yarn
+                # Projected areas of the footprint's mean SGGX matrix over its yarn texels:
+                # S = I - (1 - alpha^2) <t t^T>.
+                m = [mean(sats, fd.MOMENTS + j) * inv_yarn for j in range(6)]
+                sgn = fr["sign"]
+                m_xx, m_xy, m_xz, m_yy, m_yz, m_zz = m[0], m[1], sgn * m[2], m[3], sgn * m[4], m[5]
+
+                def sigma(w):
+                    q = (w.x * w.x * m_xx + w.y * w.y * m_yy + w.z * w.z * m_zz
+                         + 2.0 * (w.x * w.y * m_xy + w.x * w.z * m_xz + w.y * w.z * m_yz))
+                    return dr.safe_sqrt(dr.maximum(1.0 - (1.0 - self.roughness * self.roughness) * q,
+                                                   self.roughness * self.roughness))
+
+                spec, _ = spongecake.eval_specular_from(d_visible, sigma(wi), sigma(wo), wi, wo, self.thickness)
+                if enabled[SPECULAR_REFLECTION]:
+                    reflection += k["specular_albedo"] * yarn_albedo * spec
+                if enabled[SPECULAR_TRANSMISSION]:
+                    transmission += k["specular_transmittance"] * yarn_albedo * spec
+            if enabled[DIFFUSE_REFLECTION] or enabled[DIFFUSE_TRANSMISSION]:
+                if self.use_visibility:
+                    # Eq. 14 through the cluster histogram, plus the same residual texel.
+                    yarn_visible = mi.Float(0.0)
+                    for c in range(fd.clusters):
+                        yarn_visible += self._cluster_visibility(mi.UInt32(c), p, wo) * mean(sats, fd.CLUSTERS + c)
+                    yarn_visible += p["yarn"] * (v_p - vbar_p)
+                else:
+                    yarn_visible = yarn_mean
+                cosine = dr.abs(cos_o) * dr.inv_pi * yarn_visible
+                if enabled[DIFFUSE_REFLECTION]:
+                    reflection += k["diffuse_albedo"] * yarn_albedo * cosine
+                if enabled[DIFFUSE_TRANSMISSION]:
+                    transmission += k["diffuse_transmittance"] * yarn_albedo * cosine
+            under_fuzz = fr["t_sheen_i"] * sheen.sheen_transmittance(wo, self.sheen_roughness, self.sheen_thickness)
+            value += under_fuzz * dr.select(up, reflection, transmission)
+            return dr.select(valid, value, 0.0), yarn_mean
+
+        # The footprint BSDF is sampled as a mixture: one of four texels at the centres of
+        # the footprint's quadrants (their fibre-level lobes), plus defensive cosine and gap
+        # components so every lobe of the footprint average stays reachable.
+        DEFENSIVE_COSINE = 0.1
+        DEFENSIVE_GAP = 0.05
+
+        def _mixture_texels(self, fr, fp):
+            return [self._texel(fr, fr["x"] + sx * 0.5 * fp["rx"], fr["y"] + sy * 0.5 * fp["ry"])
+                    for sx, sy in ((-1, -1), (1, -1), (-1, 1), (1, 1))]
+
+        def _mixture_weights(self, enabled, yarn_mean):
+            eps_c = self.DEFENSIVE_COSINE if any(enabled[:5]) else 0.0
+            eps_d = dr.select(enabled[GAP] & (yarn_mean < 1.0), self.DEFENSIVE_GAP, 0.0)
+            return eps_c, eps_d, 1.0 - eps_c - eps_d
+
+        def _mixture_pdf(self, texels, probs, wo, enabled, eps_c, m_tex):
+            pdf = mi.Float(0.0)
+            for pt, pr in zip(texels, probs):
+                pdf += self._eval_pdf_point(pt, wo, enabled, pr)[1]
+            return m_tex * 0.25 * pdf + eps_c * dr.abs(wo.z) * (0.5 * dr.inv_pi)
+
+        def _hash2(self, si, wo):
+            """Two deterministic pseudo-random numbers per (uv, wo): places the CCV residual
+            texel in eval(), where Mitsuba passes no random numbers."""
+            def bits(x):  # 24 well-mixed bits of a float's fractional part
+                return mi.UInt32((x - dr.floor(x)) * 16777216.0)
+
+            a = bits(si.uv.x * 997.0 + wo.z * 31.0)
+            b = bits(si.uv.y * 991.0 + wo.x * 37.0)
+            v0, v1 = mi.sample_tea_32(a, b)
+            scale = 1.0 / 4294967296.0
+            return mi.Point2f(mi.Float(v0 >> 8) * (scale * 256.0), mi.Float(v1 >> 8) * (scale * 256.0))
+
+        def _mirror(self, fr, wo):
+            return mi.Vector3f(wo.x, wo.y, fr["sign"] * wo.z)
+
+        def _sample_point(self, pt, probs, enabled, sample1, sample2, active):
+            """Fibre-level sampling at one texel: (wo, ok, component, pick_gap)."""
             wi, t = pt["wi"], pt["tangent"]
-
             c_sheen = probs[SHEEN]
             c_spec = c_sheen + probs[SPECULAR_REFLECTION]
             c_dr = c_spec + probs[DIFFUSE_REFLECTION]
@@ -293,24 +473,88 @@ def make_cloth_class():
             ok = active & (wi.z > spongecake.COS_EPSILON) & (pick_sheen | pick_spec | pick_dr | pick_dt)
             ok &= ~pick_sheen | lands_up
             ok &= ~pick_spec | dr.select(lands_up, enabled[SPECULAR_REFLECTION], enabled[SPECULAR_TRANSMISSION])
-
-            value, pdf = self._eval_pdf_local(ctx, pt, wo, enabled, probs)
-            ok &= pdf > 0.0
-            weight = dr.select(ok, value / dr.select(ok, pdf, 1.0), 0.0)
-
             component = dr.select(pick_sheen, SHEEN,
                         dr.select(pick_spec, dr.select(lands_up, SPECULAR_REFLECTION, SPECULAR_TRANSMISSION),
                         dr.select(pick_dr, DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION)))
-
-            # Gaps: straight through, a discrete choice of probability probs[GAP].
             gap_ok = active & pick_gap & (wi.z > spongecake.COS_EPSILON)
-            gap_weight = pt["t_sheen_i"] * pt["t_sheen_i"] * (1.0 - pt["yarn"]) / dr.select(gap_ok, probs[GAP], 1.0)
+            return wo, ok, mi.UInt32(component), gap_ok
+
+        # ------------------------------------------------------------------
+        # mi.BSDF interface
+        # ------------------------------------------------------------------
+        def sample(self, ctx, si, sample1, sample2, active=True):
+            enabled = self._enabled(ctx)
+            fr = self._frame(si, active)
+            pt = self._texel(fr, fr["x"], fr["y"])
+            probs = self._lobe_probabilities(pt, enabled)
+
+            if not self.multiscale:
+                wo, ok, component, gap_ok = self._sample_point(pt, probs, enabled, sample1, sample2, active)
+                value, pdf = self._eval_pdf_point(pt, wo, enabled, probs)
+                gap_pdf = probs[GAP]
+                gap_value = pt["t_sheen_i"] * pt["t_sheen_i"] * (1.0 - pt["yarn"])
+            else:
+                fp = self._footprint(si, fr)
+                texels = self._mixture_texels(fr, fp)
+                tex_probs = [self._lobe_probabilities(t_, enabled) for t_ in texels]
+                _, yarn_mean = self._eval_footprint(fr, fp, mi.Vector3f(0, 0, 1), [False] * 6, sample2)
+                eps_c, eps_d, m_tex = self._mixture_weights(enabled, yarn_mean)
+                eps_d = dr.select(fp["use"], eps_d, 0.0)
+                eps_c = dr.select(fp["use"], eps_c, 0.0)
+                m_tex = 1.0 - eps_c - eps_d
+                # Split sample1: defensive gap | defensive cosine | one of four texels.
+                pick_def_gap = sample1 < eps_d
+                pick_def_cos = ~pick_def_gap & (sample1 < eps_d + eps_c)
+                u = (sample1 - eps_d - eps_c) / dr.select(m_tex > 0.0, m_tex, 1.0)
+                quad = mi.UInt32(dr.clip(dr.floor(u * 4.0), 0, 3))
+                u = dr.clip(u * 4.0 - mi.Float(quad), 0.0, 0.99999994)
+                chosen = dict(texels[0])
+                chosen_probs = list(tex_probs[0])
+                for q in range(1, 4):
+                    sel = fp["use"] & (quad == q)
+                    for key in ("tangent", "yarn", "ix", "iy"):
+                        chosen[key] = dr.select(sel, texels[q][key], chosen[key])
+                    chosen["k"] = {n: dr.select(sel, texels[q]["k"][n], chosen["k"][n]) for n in chosen["k"]}
+                    chosen_probs = [dr.select(sel, a, b) for a, b in zip(tex_probs[q], chosen_probs)]
+                # Sub-texel footprints are the fibre-level BSDF at the texel itself.
+                for key in ("tangent", "yarn", "ix", "iy"):
+                    chosen[key] = dr.select(fp["use"], chosen[key], pt[key])
+                chosen["k"] = {n: dr.select(fp["use"], chosen["k"][n], pt["k"][n]) for n in chosen["k"]}
+                chosen_probs = [dr.select(fp["use"], a, b) for a, b in zip(chosen_probs, probs)]
+                u = dr.select(fp["use"], u, sample1)
+
+                wo, ok, component, gap_ok = self._sample_point(chosen, chosen_probs, enabled, u, sample2, active)
+                wo_cos = mi.warp.square_to_cosine_hemisphere(sample2)
+                # The defensive cosine side: the lower or upper half of its sample1 slice.
+                lower = (sample1 - eps_d) < 0.5 * eps_c
+                wo_cos.z = dr.select(lower, -wo_cos.z, wo_cos.z)
+                wo = dr.select(pick_def_cos, wo_cos, wo)
+                ok = dr.select(pick_def_cos, active & (fr["wi"].z > spongecake.COS_EPSILON), ok & ~pick_def_gap)
+                component = dr.select(pick_def_cos, dr.select(lower, DIFFUSE_TRANSMISSION, DIFFUSE_REFLECTION),
+                                      component)
+                gap_ok = (gap_ok & ~pick_def_cos) | (pick_def_gap & active & (fr["wi"].z > spongecake.COS_EPSILON))
+
+                xi = self._hash2(si, wo)
+                fp_value, _ = self._eval_footprint(fr, fp, wo, enabled, xi)
+                fp_pdf = self._mixture_pdf(texels, tex_probs, wo, enabled, eps_c, m_tex)
+                pt_value, pt_pdf = self._eval_pdf_point(pt, wo, enabled, probs)
+                value = dr.select(fp["use"], fp_value, pt_value)
+                pdf = dr.select(fp["use"], fp_pdf, pt_pdf)
+                mean_gap = 0.25 * (tex_probs[0][GAP] + tex_probs[1][GAP] + tex_probs[2][GAP] + tex_probs[3][GAP])
+                gap_pdf = dr.select(fp["use"], eps_d + m_tex * mean_gap, probs[GAP])
+                fp_gap = 1.0 - yarn_mean
+                gap_value = pt["t_sheen_i"] * pt["t_sheen_i"] * dr.select(fp["use"], fp_gap, 1.0 - pt["yarn"])
+
+            ok &= pdf > 0.0
+            weight = dr.select(ok, value / dr.select(ok, pdf, 1.0), 0.0)
+            gap_ok &= gap_pdf > 0.0
+            gap_weight = gap_value / dr.select(gap_ok, gap_pdf, 1.0)
 
             bs = dr.zeros(mi.BSDFSample3f)
-            bs.wo = dr.select(gap_ok, -si.wi, self._mirror(pt, wo))
-            bs.pdf = dr.select(gap_ok, probs[GAP], dr.select(ok, pdf, 0.0))
+            bs.wo = dr.select(gap_ok, -si.wi, self._mirror(fr, wo))
+            bs.pdf = dr.select(gap_ok, gap_pdf, dr.select(ok, pdf, 0.0))
             bs.eta = 1.0
-            bs.sampled_component = mi.UInt32(dr.select(gap_ok, GAP, component))
+            bs.sampled_component = dr.select(gap_ok, mi.UInt32(GAP), component)
             type_of = [mi.UInt32(+f) for f in lobe_types]
             sampled_type = type_of[SHEEN]
             for c in range(1, 6):
@@ -319,21 +563,33 @@ def make_cloth_class():
             weight = dr.select(gap_ok, mi.Color3f(gap_weight), weight)
             return bs, weight
 
-        def eval(self, ctx, si, wo, active=True):
+        def _eval_pdf_any(self, ctx, si, wo, active, want_pdf):
             enabled = self._enabled(ctx)
-            pt = self._point(ctx, si, active)
-            value, _ = self._eval_pdf_local(ctx, pt, self._mirror(pt, wo), enabled, None, want_pdf=False)
-            return dr.select(active, value, 0.0)
+            fr = self._frame(si, active)
+            wo_m = self._mirror(fr, wo)
+            pt = self._texel(fr, fr["x"], fr["y"])
+            probs = self._lobe_probabilities(pt, enabled) if want_pdf else None
+            value, pdf = self._eval_pdf_point(pt, wo_m, enabled, probs, want_pdf)
+            if self.multiscale:
+                fp = self._footprint(si, fr)
+                fp_value, yarn_mean = self._eval_footprint(fr, fp, wo_m, enabled, self._hash2(si, wo_m))
+                value = dr.select(fp["use"], fp_value, value)
+                if want_pdf:
+                    texels = self._mixture_texels(fr, fp)
+                    tex_probs = [self._lobe_probabilities(t_, enabled) for t_ in texels]
+                    eps_c, eps_d, _ = self._mixture_weights(enabled, yarn_mean)
+                    m_tex = 1.0 - eps_c - eps_d
+                    pdf = dr.select(fp["use"], self._mixture_pdf(texels, tex_probs, wo_m, enabled, eps_c, m_tex), pdf)
+            return dr.select(active, value, 0.0), dr.select(active, pdf, 0.0) if want_pdf else None
+
+        def eval(self, ctx, si, wo, active=True):
+            return self._eval_pdf_any(ctx, si, wo, active, False)[0]
 
         def pdf(self, ctx, si, wo, active=True):
-            return self.eval_pdf(ctx, si, wo, active)[1]
+            return self._eval_pdf_any(ctx, si, wo, active, True)[1]
 
         def eval_pdf(self, ctx, si, wo, active=True):
-            enabled = self._enabled(ctx)
-            pt = self._point(ctx, si, active)
-            probs = self._lobe_probabilities(ctx, pt, enabled)
-            value, pdf = self._eval_pdf_local(ctx, pt, self._mirror(pt, wo), enabled, probs)
-            return dr.select(active, value, 0.0), dr.select(active, pdf, 0.0)
+            return self._eval_pdf_any(ctx, si, wo, active, True)
 
         def traverse(self, callback):
             for name in FLOAT_PARAMETERS:

@@ -35,6 +35,19 @@ SPECTRUM_PARAMETERS = {
 }
 
 
+#: Switches and table sizes of multi-scale shading: name -> (default, low, high, meaning).
+INT_PARAMETERS = {
+    "direction_bins": (16, 4, 64, "half-vector bins per side of the directional SAT (dr)"),
+    "visibility_bins": (8, 2, 32, "direction bins per side of the visibility tables"),
+    "clusters": (8, 1, 32, "visibility clusters for the control variates"),
+}
+BOOL_PARAMETERS = {
+    "multiscale": (True, "shade whole pixel footprints (summed-area tables + CCV)"),
+    "visibility": (True, "shadowing and masking by the cloth's height field"),
+    "unbiased_ccv": (False, "per-cluster base of the control variates (unbiased, 8x the SAT memory)"),
+}
+
+
 @dataclass
 class ClothParameters:
     pattern: str
@@ -46,6 +59,12 @@ class ClothParameters:
     sheen_roughness: float
     sheen_thickness: float
     textures: dict  # name -> mi.Texture
+    multiscale: bool = True
+    visibility: bool = True
+    unbiased_ccv: bool = False
+    direction_bins: int = 16
+    visibility_bins: int = 8
+    clusters: int = 8
 
 
 def _read_float(props, name):
@@ -138,4 +157,18 @@ def read_parameters(props) -> ClothParameters:
             f"must be <= 1 in every channel so the cloth cannot reflect more light than it receives; "
             f"got {total[ch]:.3g} in channel {'RGB'[ch]} (defaults: 0.4 + 0.1 + max(0.4, 0.2) = 0.9)")
 
-    return ClothParameters(pattern=pattern, resolution=resolution or None, textures=textures, **floats)
+    switches = {}
+    for name, (default, meaning) in BOOL_PARAMETERS.items():
+        value = props.get(name, default)
+        if not isinstance(value, bool):
+            raise ParameterError(f"cloth: parameter '{name}' ({meaning}) must be a boolean, got {value!r}")
+        switches[name] = value
+    for name, (default, low, high, meaning) in INT_PARAMETERS.items():
+        value = props.get(name, default)
+        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+            raise ParameterError(f"cloth: parameter '{name}' ({meaning}) must be an integer in "
+                                 f"[{low}, {high}], got {value!r}")
+        switches[name] = value
+
+    return ClothParameters(pattern=pattern, resolution=resolution or None, textures=textures,
+                           **floats, **switches)

@@ -66,15 +66,21 @@ def eval_specular(wi, wo, t, alpha, thickness):
 
     Returns (value, is_reflection). Zero at grazing directions.
     """
-    cos_i = wi.z
-    cos_o = wo.z
-    valid = (cos_i > COS_EPSILON) & (dr.abs(cos_o) > COS_EPSILON)
-    reflect = cos_o > 0.0
-
     h = dr.normalize(wi + wo)
     d = sggx.ndf(h, t, alpha)
     sigma_i = sggx.projected_area(wi, t, alpha)
     sigma_o = sggx.projected_area(wo, t, alpha)
+    return eval_specular_from(d, sigma_i, sigma_o, wi, wo, thickness)
+
+
+def eval_specular_from(d, sigma_i, sigma_o, wi, wo, thickness):
+    """:func:`eval_specular` given the flake density ``d`` = D(h) and the projected
+    areas sigma(wi), sigma(wo): the form multi-scale shading uses with footprint-averaged
+    D and sigma."""
+    cos_i = wi.z
+    cos_o = wo.z
+    valid = (cos_i > COS_EPSILON) & (dr.abs(cos_o) > COS_EPSILON)
+    reflect = cos_o > 0.0
     abs_cos_o = dr.abs(cos_o)
 
     # Reflection: G_r / cos_i = (1 - e^{-T s}) |cos o| / (sigma_i |cos o| + sigma_o cos i),

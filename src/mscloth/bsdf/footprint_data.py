@@ -1,0 +1,78 @@
+"""The multi-scale tables of one tile in Dr.Jit memory, and the per-lane queries the
+``cloth`` BSDF makes of them: footprint integrals (SATs), height-field visibility and
+visibility-cluster means."""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from .sat_queries import ResidualSATs, flat_array, gather, hemisphere_bins
+
+
+class FootprintData:
+    """Uploads a :class:`mscloth.precompute.tables.MultiscaleTables`."""
+
+    def __init__(self, tables, with_sats: bool):
+        self.H, self.W = tables.visibility.shape[:2]
+        self.dr = int(tables.dr)
+        self.dv = int(tables.dv)
+        self.clusters = int(tables.cluster_vis.shape[0])
+        self.n_dirs = self.dv * self.dv
+        # Front and back visibility back to back: the back half is for the mirrored side.
+        vis = np.stack([tables.visibility, tables.visibility_back]).astype(np.float32) / 255.0
+        self.visibility = flat_array(vis)
+        self.side_stride = self.H * self.W * self.n_dirs
+        cvis = np.stack([tables.cluster_vis, tables.cluster_vis_back]).astype(np.float32)
+        self.cluster_vis = flat_array(cvis)
+        # Cluster ids as floats (exact for small integers): one gatherable array type.
+        self.cluster_id = flat_array(np.maximum(tables.cluster_id, 0))
+        self.with_sats = with_sats
+        self.per_cluster = with_sats and getattr(tables, "d_sat_cluster", None) is not None
+        if with_sats:
+            self.d_sat = ResidualSATs(tables.d_sat, tables.d_mean)
+            # gap, albedo (3), moments (6), cluster histogram (k): one buffer, channel offsets.
+            sats = [tables.gap_sat, tables.albedo_sat, tables.moment_sat, tables.cluster_sat]
+            means = [tables.gap_mean, tables.albedo_mean, tables.moment_mean, tables.cluster_mean]
+            self.scalar_sats = ResidualSATs(np.concatenate([np.asarray(s).reshape(-1, self.H + 1, self.W + 1)
+                                                            for s in sats]),
+                                            np.concatenate([np.ravel(m) for m in means]))
+            if self.per_cluster:
+                k, b = self.clusters, self.dr * self.dr
+                self.d_sat_cluster = ResidualSATs(np.asarray(tables.d_sat_cluster).reshape(k * b, self.H + 1, self.W + 1),
+                                                  np.ravel(tables.d_cluster_mean))
+
+    # Channel offsets inside scalar_sats.
+    GAP, ALBEDO, MOMENTS = 0, 1, 4
+    CLUSTERS = 10
+
+    def nbytes(self) -> int:
+        total = 4 * (len(self.visibility) + len(self.cluster_vis) + len(self.cluster_id))
+        if self.with_sats:
+            total += self.d_sat.nbytes() + self.scalar_sats.nbytes()
+            if self.per_cluster:
+                total += self.d_sat_cluster.nbytes()
+        return total
+
+    # ------------------------------------------------------------------ visibility
+    def visibility_at(self, ix, iy, w, back):
+        """V(p, w) of texel (ix, iy) for an upper-hemisphere direction ``w`` of the front
+        (back=False) or mirrored back (back=True) height field, bilinear over direction bins."""
+        bins, weights = hemisphere_bins(w, self.dv)
+        base = dr.select(back, mi.UInt32(self.side_stride), mi.UInt32(0)) + (iy * self.W + ix) * self.n_dirs
+        v = mi.Float(0.0)
+        for b, wt in zip(bins, weights):
+            v += wt * gather(self.visibility, base + b)
+        return v
+
+    def cluster_visibility(self, cluster, w, back):
+        """Mean V of a visibility cluster for direction ``w`` (same conventions)."""
+        bins, weights = hemisphere_bins(w, self.dv)
+        base = (dr.select(back, mi.UInt32(self.clusters), mi.UInt32(0)) + cluster) * self.n_dirs
+        v = mi.Float(0.0)
+        for b, wt in zip(bins, weights):
+            v += wt * gather(self.cluster_vis, base + b)
+        return v
+
+    def cluster_of(self, ix, iy):
+        return mi.UInt32(gather(self.cluster_id, iy * self.W + ix))

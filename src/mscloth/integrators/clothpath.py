@@ -1,0 +1,282 @@
+"""The ``clothpath`` integrator: Mitsuba's ``path`` plus a pixel footprint for every BSDF call.
+
+Plugin classes bind to the Mitsuba variant active when they are defined, so
+:func:`make_clothpath_class` builds one class per variant (see :mod:`mscloth.integrators`).
+"""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+from . import footprint as fp
+
+DOCSTRING = r"""
+Path tracer with pixel footprints (``clothpath``)
+-------------------------------------------------
+
+Mitsuba's ``path`` integrator (3.9.1: emitter sampling, BSDF sampling, power-heuristic MIS,
+the same Russian roulette rule and the same order of random numbers), which in addition hands
+every BSDF call the pixel footprint of its shading point in ``si.duv_dx`` / ``si.duv_dy``
+(Mitsuba's ``path`` drops ray differentials, so BSDFs see zeros there). On scenes whose BSDFs
+ignore ``duv_dx`` / ``duv_dy`` it renders the same image as ``path``.
+
+* first hit: the camera's ray differentials, rescaled to the whole pixel (Mitsuba scales
+  them by 1/sqrt(spp)), intersected with the tangent plane;
+* later hits: a ray cone whose width grows with distance and whose spread grows at each
+  non-delta bounce by 2/sqrt(pi pdf) (see :mod:`mscloth.integrators.footprint`).
+
+Footprint convention: the footprint of a shading point is the axis-aligned UV rectangle
+centred on ``si.uv`` with half-widths 1/2 (|du/dx| + |du/dy|) and 1/2 (|dv/dx| + |dv/dy|).
+
+.. list-table::
+   :header-rows: 1
+
+   * - Parameter
+     - Type
+     - Default
+     - Meaning
+   * - max_depth
+     - integer
+     - -1
+     - Longest path depth (-1: infinite; 1: only directly visible emitters; 2: direct
+       illumination only, ...), as in ``path``.
+   * - rr_depth
+     - integer
+     - 5
+     - Depth at which Russian roulette starts, > 0.
+   * - hide_emitters
+     - boolean
+     - false
+     - Hide directly visible emitters.
+
+AOVs ``footprint_u`` and ``footprint_v``: the footprint half-widths in UV at the first hit
+(0 where the camera ray escapes), e.g. ``footprint_u`` = 1/(2N) for a UV square seen
+head-on across N pixels. Not done: shadow rays do not see through cloth gaps (a gap is a
+delta-transmission lobe, which emitter sampling cannot use; paths through gaps are still
+found by BSDF sampling).
+"""
+
+_UINT32_MAX = 0xFFFFFFFF
+
+
+def _read_properties(props):
+    max_depth = props.get("max_depth", -1)
+    if not isinstance(max_depth, int) or (max_depth < 0 and max_depth != -1):
+        raise ValueError('clothpath: "max_depth" must be -1 (infinite) or an integer >= 0, '
+                         f"got {max_depth!r}")
+    rr_depth = props.get("rr_depth", 5)
+    if not isinstance(rr_depth, int) or rr_depth <= 0:
+        raise ValueError(f'clothpath: "rr_depth" must be an integer > 0, got {rr_depth!r}')
+    return (_UINT32_MAX if max_depth == -1 else max_depth), rr_depth
+
+
+def mis_weight(pdf_a, pdf_b):
+    """Power heuristic (exponent 2), 0 where undefined, detached as in Mitsuba's ``path``."""
+    a2 = pdf_a * pdf_a
+    total = a2 + pdf_b * pdf_b
+    w = a2 / dr.select(total > 0, total, 1.0)  # 0/0 -> 0 without raising in scalar mode
+    return dr.detach(dr.select(dr.isfinite(w), w, 0.0))
+
+
+def _not(mask):
+    """Logical not of a mask, also for the Python bools of scalar variants (where ~ is wrong)."""
+    return mask ^ True
+
+
+def spec_fma(a, b, c):
+    """a * b + c: a Mueller-matrix product in polarized variants, a fused multiply-add else."""
+    if mi.is_polarized:
+        return a * b + c
+    return dr.fma(a, b, c)
+
+
+def make_clothpath_class():
+    """Define the ``clothpath`` integrator class for the active Mitsuba variant."""
+
+    class ClothPathIntegrator(mi.SamplingIntegrator):
+        __doc__ = DOCSTRING
+
+        def __init__(self, props):
+            mi.SamplingIntegrator.__init__(self, props)
+            self.max_depth, self.rr_depth = _read_properties(props)
+
+        def aov_names(self):
+            return ["footprint_u", "footprint_v"]
+
+        def to_string(self):
+            depth = -1 if self.max_depth == _UINT32_MAX else self.max_depth
+            return (f"ClothPathIntegrator[max_depth = {depth}, rr_depth = {self.rr_depth}, "
+                    f"hide_emitters = {self.hide_emitters}]")
+
+        def sample(self, scene, sampler, ray, medium=None, active=True):
+            if self.max_depth == 0:
+                zero = mi.Float(0.0)
+                return mi.Spectrum(0.0), mi.Bool(False), [zero, zero]
+
+            # Whole-pixel differentials and the camera's ray cone.
+            ray_d = fp.undo_differential_scaling(ray, sampler.sample_count())
+            has_diff = bool(ray.has_differentials)
+            if has_diff:
+                width0, spread0 = fp.camera_cone(ray_d.o, ray_d.d, ray_d.o_x, ray_d.d_x,
+                                                 ray_d.o_y, ray_d.d_y)
+            else:
+                width0, spread0 = mi.Float(0.0), mi.Float(0.0)
+            return self._trace(scene, sampler, ray_d, has_diff, mi.Float(width0),
+                               mi.Float(spread0), mi.Bool(active))
+
+        def _trace(self, scene, sampler, ray_d, has_diff, width0, spread0, active):
+            jit = dr.is_jit_v(mi.Float)
+            bsdf_ctx = mi.BSDFContext()
+            max_depth = self.max_depth
+            rr_depth = self.rr_depth
+            hide_emitters = self.hide_emitters
+            o_x, d_x, o_y, d_y = ray_d.o_x, ray_d.d_x, ray_d.o_y, ray_d.d_y  # loop-invariant
+
+            ray = mi.Ray3f(ray_d)
+            pi = scene.ray_intersect_preliminary(ray, coherent=True, active=active)
+
+            if hide_emitters:
+                # Directly visible area emitters: skip all of them along the camera ray.
+                if jit:
+                    skip = pi.is_valid() & (pi.shape.emitter() != None) & active  # noqa: E711
+                else:
+                    skip = bool(active and pi.is_valid() and pi.shape.emitter() is not None)
+                if jit or skip:
+                    si_skip = pi.compute_surface_interaction(ray, mi.RayFlags.Minimal, skip)
+                    ray_skip = si_skip.spawn_ray(ray.d)
+                    pi_after = self.skip_area_emitters(scene, ray_skip, True, skip)
+                    if jit:
+                        pi[skip] = pi_after
+                    else:
+                        pi = pi_after
+
+            def loop_cond(state):
+                return state[10]  # active
+
+            def loop_body(state):
+                (sampler, ray, pi, throughput, result, eta, depth, valid_ray, prev_si,
+                 prev_bsdf_pdf, active, prev_bsdf_delta, cone_w, cone_spread,
+                 aov_u, aov_v) = state
+
+                si = pi.compute_surface_interaction(ray, mi.RayFlags.All)
+
+                # ------------------------- Footprint -------------------------
+                first = depth == 0
+                w_hit = fp.cone_width(cone_w, cone_spread, si.t)
+                c_dx, c_dy = fp.cone_footprint(w_hit, ray.d, si.n, si.dp_du, si.dp_dv)
+                if has_diff:
+                    r_dx, r_dy = fp.differential_footprint(si.p, si.n, si.dp_du, si.dp_dv,
+                                                           o_x, d_x, o_y, d_y)
+                    si.duv_dx = dr.select(first, r_dx, c_dx)
+                    si.duv_dy = dr.select(first, r_dy, c_dy)
+                else:
+                    si.duv_dx = c_dx
+                    si.duv_dy = c_dy
+                record = first & si.is_valid()
+                h_u, h_v = fp.half_widths(si.duv_dx, si.duv_dy)
+                aov_u = dr.select(record, h_u, aov_u)
+                aov_v = dr.select(record, h_v, aov_v)
+
+                # ---------------------- Direct emission ----------------------
+                # (JIT variants always take this branch, as path.cpp's any_or<true>.)
+                if jit or si.emitter(scene) is not None:
+                    ds = mi.DirectionSample3f(scene, si=si, ref=prev_si)
+                    em_pdf = mi.Float(0.0)
+                    if jit or not prev_bsdf_delta:
+                        em_pdf = scene.pdf_emitter_direction(prev_si, ds, _not(prev_bsdf_delta))
+                    mis_bsdf = mis_weight(prev_bsdf_pdf, em_pdf)
+                    result = spec_fma(throughput,
+                                      ds.emitter.eval(si, prev_bsdf_pdf > 0.0) * mis_bsdf, result)
+
+                # Continue tracing the path at this point?
+                active_next = (depth + 1 < max_depth) & si.is_valid()
+                if not jit and not active_next:  # scalar variants stop here, as path.cpp does
+                    return (sampler, ray, pi, throughput, result, eta, depth, valid_ray,
+                            prev_si, prev_bsdf_pdf, False, prev_bsdf_delta, cone_w,
+                            cone_spread, aov_u, aov_v)
+
+                bsdf = si.bsdf()
+
+                # ---------------------- Emitter sampling ---------------------
+                active_em = active_next & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+                wo = mi.Vector3f(0.0)
+                if jit or active_em:
+                    ds, em_weight = scene.sample_emitter_direction(si, sampler.next_2d(), True,
+                                                                   active_em)
+                    active_em &= ds.pdf != 0.0
+                    wo = si.to_local(ds.d)
+
+                # ------ Evaluate BSDF * cos(theta) and sample a direction ------
+                sample_1 = sampler.next_1d()
+                sample_2 = sampler.next_2d()
+                bsdf_val, bsdf_pdf, bsdf_sample, bsdf_weight = bsdf.eval_pdf_sample(
+                    bsdf_ctx, si, wo, sample_1, sample_2)
+
+                # ---------------- Emitter sampling contribution ---------------
+                if jit or active_em:
+                    bsdf_val = si.to_world_mueller(bsdf_val, -wo, si.wi)
+                    mis_em = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, bsdf_pdf))
+                    result = dr.select(active_em,
+                                       spec_fma(throughput, bsdf_val * em_weight * mis_em, result),
+                                       result)
+
+                # ----------------------- BSDF sampling ------------------------
+                bsdf_weight = si.to_world_mueller(bsdf_weight, -bsdf_sample.wo, si.wi)
+                ray = si.spawn_ray(si.to_world(bsdf_sample.wo))
+
+                # ------- Update loop variables based on current interaction -----
+                throughput = throughput * bsdf_weight
+                eta = eta * bsdf_sample.eta
+                valid_ray = valid_ray | (active & si.is_valid() & _not(
+                    mi.has_flag(bsdf_sample.sampled_type, mi.BSDFFlags.Null)))
+                prev_si = mi.Interaction3f(si)
+                prev_bsdf_pdf = bsdf_sample.pdf
+                prev_bsdf_delta = mi.has_flag(bsdf_sample.sampled_type, mi.BSDFFlags.Delta)
+
+                # The cone leaves this vertex with its width here, spread by the lobe.
+                cone_w = w_hit
+                cone_spread = fp.bounce_spread(cone_spread, bsdf_sample.pdf, prev_bsdf_delta)
+
+                # -------------------- Stopping criterion ---------------------
+                depth = dr.select(si.is_valid(), depth + 1, depth)
+                throughput_max = dr.max(mi.unpolarized_spectrum(throughput))
+                rr_prob = dr.minimum(throughput_max * dr.square(eta), 0.95)
+                rr_active = depth >= rr_depth
+                rr_continue = sampler.next_1d() < rr_prob
+                throughput = dr.select(rr_active, throughput * dr.rcp(dr.detach(rr_prob)),
+                                       throughput)
+                active = active_next & (_not(rr_active) | rr_continue) & (throughput_max != 0.0)
+
+                pi = scene.ray_intersect_preliminary(ray, coherent=False, active=active)
+                return (sampler, ray, pi, throughput, result, eta, depth, valid_ray, prev_si,
+                        prev_bsdf_pdf, active, prev_bsdf_delta, cone_w, cone_spread,
+                        aov_u, aov_v)
+
+            state = (
+                sampler, ray, pi,
+                mi.Spectrum(1.0),                 # throughput
+                mi.Spectrum(0.0),                 # result
+                mi.Float(1.0),                    # eta
+                mi.UInt32(0),                     # depth
+                # If emitters are not hidden, the environment is visible.
+                mi.Bool((not hide_emitters) and scene.environment() is not None),
+                dr.zeros(mi.Interaction3f),       # prev_si
+                mi.Float(1.0),                    # prev_bsdf_pdf
+                mi.Bool(active),                  # active
+                mi.Bool(True),                    # prev_bsdf_delta
+                mi.Float(width0),                 # cone width at the previous vertex
+                mi.Float(spread0),                # cone spread angle
+                mi.Float(0.0), mi.Float(0.0),     # AOVs
+            )
+            if jit:
+                state = dr.while_loop((state,), lambda st: loop_cond(st),
+                                      lambda st: (loop_body(st),), label="clothpath")[0]
+            else:
+                while state[10]:
+                    state = loop_body(state)
+            result, valid_ray, aov_u, aov_v = state[4], state[7], state[14], state[15]
+            return dr.select(valid_ray, result, 0.0), valid_ray, [aov_u, aov_v]
+
+    ClothPathIntegrator.__name__ = "ClothPathIntegrator"
+    ClothPathIntegrator.__qualname__ = "ClothPathIntegrator"
+    return ClothPathIntegrator

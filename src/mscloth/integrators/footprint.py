@@ -1,0 +1,234 @@
+"""Pixel footprints for shading points: ray differentials at the first hit, ray cones after.
+
+Pure functions on Dr.Jit arrays of the active Mitsuba variant (no scene, no state), used by
+the ``clothpath`` integrator and testable on their own.
+
+Convention (shared with the ``cloth`` BSDF)
+-------------------------------------------
+A shading point receives its footprint in ``si.duv_dx`` / ``si.duv_dy``: the UV change for
+one pixel step along the two image axes. The footprint of the point is the axis-aligned UV
+rectangle centred on ``si.uv`` with half-widths
+
+    h_u = 1/2 (|du/dx| + |du/dy|),    h_v = 1/2 (|dv/dx| + |dv/dy|)
+
+(:func:`half_widths`). The ``cloth`` BSDF multiplies these by its ``uv_scale`` and the tile
+resolution to get texels.
+
+First hit: ray differentials
+----------------------------
+Camera rays carry differentials (the rays through the neighbouring pixel centres). Mitsuba's
+render loop scales them by 1/sqrt(spp) before calling ``SamplingIntegrator.sample`` (in 3.9.1:
+``ray.scale_differential(rsqrt(spp))`` in ``render_sample``, spp = ``sampler.sample_count()``),
+which :func:`undo_differential_scaling` reverts, so the footprint is the whole pixel whatever
+the sample count. :func:`differential_footprint` intersects the offset rays with the tangent
+plane and solves for the UV partials like ``SurfaceInteraction3f.compute_uv_partials``, but
+robustly (:func:`world_to_uv`).
+
+Later hits: ray cones
+---------------------
+After the first hit the path carries a cone (Akenine-Moller et al. 2019, "Texture level of
+detail strategies for real-time ray tracing"; 2021, "Improved shader and texture level of
+detail using ray cones"): a width ``W`` (diameter perpendicular to the ray) and a spread
+angle ``gamma`` (full apex angle, radians). The camera gives ``W0`` (width at the ray origin:
+0 for a pinhole) and ``gamma0`` (the angle between neighbouring pixels' rays),
+:func:`camera_cone`. Along a segment of length ``t`` the width grows linearly,
+``W <- W + gamma * t`` (:func:`cone_width`, the small-angle ray-cone rule).
+
+Spread rule at a bounce (:func:`bounce_spread`). The cone must widen with the roughness of the
+BSDF lobe, but Mitsuba's BSDF interface exposes no roughness; what every BSDF does expose is
+the density ``pdf`` (per steradian) of the direction it sampled. A lobe of density ``p`` covers
+an effective solid angle ``1/p``; a cone of that solid angle has apex angle ``2/sqrt(pi p)``
+(small-angle), so
+
+    gamma <- min(gamma + beta, MAX_SPREAD),   beta = 0 for delta samples,
+                                              beta = 2 / sqrt(pi * pdf) otherwise.
+
+This is the path-differential rule of Suykens & Willems 2001 (a sampled direction's angular
+footprint ~ 1/sqrt(pdf)) in ray-cone form. It needs no knowledge of the BSDF: a mirror
+(delta) keeps the camera spread, so a flat mirror shows the footprint of the total distance;
+a GGX lobe of roughness 0.1 at normal incidence (pdf ~ 8) adds about 0.4 rad; a diffuse
+bounce (pdf <= 1/pi) adds about 2 rad, capped at ``MAX_SPREAD`` = pi/2 (beyond that the
+linear cone is meaningless). The sampled pdf is random, so the footprint after a rough
+bounce is too: it is a filtering width, not an estimator weight, so no bias is introduced
+in the light transport, only in the filtered BSDF's choice of scale. Not modelled: surface
+curvature (the ``beta`` of Akenine-Moller et al. for curved mirrors) and refraction's angular
+compression.
+
+Cone to UV (:func:`cone_footprint`): the cone's disk of diameter ``W`` projects along the ray
+onto the tangent plane as an ellipse with semi-axes ``W/2`` (across the plane of incidence)
+and ``W/(2|cos theta|)`` (in it). Mapped to UV through ``dp_du``, ``dp_dv`` it stays an ellipse;
+its axis-aligned bounding box has half-widths (h_u, h_v), returned as the two orthogonal UV
+vectors ``duv_dx = (2 h_u, 0)``, ``duv_dy = (0, 2 h_v)``, so the convention above gives back
+exactly that box.
+
+Degenerate cases: where ``dp_du`` (or ``dp_dv``) vanishes, e.g. at a sphere's pole, all values
+of u meet at one point, so a footprint of positive size covers the whole u range: the UV
+offset along that axis is set to one UV unit. Every footprint is then capped
+(:func:`cap_footprint`) so that its half-widths do not exceed ``MAX_HALF_WIDTH`` = 1/2, i.e.
+the rectangle is at most the unit UV square (also at grazing angles, where the footprint
+diverges). Nothing returns NaN or infinity.
+"""
+from __future__ import annotations
+
+import math
+
+import drjit as dr
+import mitsuba as mi
+
+#: Largest footprint half-width in UV: the rectangle is at most the unit UV square.
+MAX_HALF_WIDTH = 0.5
+#: UV offset given to a world displacement along a degenerate axis (dp_dk = 0): one UV unit.
+DEGENERATE_UV = 1.0
+#: Cap on a cone's spread angle (full apex angle, radians).
+MAX_SPREAD = 0.5 * math.pi
+#: Smallest |cos theta| used when projecting a cone onto a surface (grazing cap, 1000x).
+MIN_COS = 1e-3
+#: dp_du, dp_dv count as parallel below this sin^2 of the angle between them.
+_PARALLEL_SIN2 = 1e-6
+#: An axis is degenerate when |dp_dk|^2 is below this fraction of |dp_du|^2 + |dp_dv|^2.
+_DEGENERATE_REL = 1e-12
+
+
+def undo_differential_scaling(ray, spp):
+    """A copy of ``ray`` whose differentials span a whole pixel again.
+
+    Mitsuba's render loop calls ``ray.scale_differential(1/sqrt(spp))`` before
+    ``sample()``; this applies the inverse factor ``sqrt(spp)`` (``spp`` >= 1).
+    """
+    # Field by field: RayDifferential3f(ray) does not copy the differentials.
+    out = mi.RayDifferential3f(ray.o, ray.d, ray.time, ray.wavelengths)
+    out.maxt = ray.maxt
+    if not ray.has_differentials:
+        return out
+    k = math.sqrt(float(max(spp, 1)))
+    out.o_x = dr.fma(ray.o_x - ray.o, k, ray.o)
+    out.o_y = dr.fma(ray.o_y - ray.o, k, ray.o)
+    out.d_x = dr.fma(ray.d_x - ray.d, k, ray.d)
+    out.d_y = dr.fma(ray.d_y - ray.d, k, ray.d)
+    out.has_differentials = True
+    return out
+
+
+def camera_cone(o, d, o_x, d_x, o_y, d_y):
+    """(width at the ray origin, spread angle) of the cone of a camera ray with differentials.
+
+    Width: mean distance of the offset rays' origins (0 for a pinhole, the pixel size for an
+    orthographic camera); spread: mean angle between ``d`` and the offset directions.
+    """
+    width = 0.5 * (dr.norm(o_x - o) + dr.norm(o_y - o))
+    dn = dr.normalize(d)
+    spread = 0.5 * (_angle_between(dn, dr.normalize(d_x)) + _angle_between(dn, dr.normalize(d_y)))
+    return width, spread
+
+
+def _angle_between(a, b):
+    """Angle between unit vectors, accurate for small angles (2 asin(|a - b| / 2))."""
+    return 2.0 * dr.safe_asin(0.5 * dr.norm(a - b))
+
+
+def cone_width(width, spread, distance):
+    """Width of a cone after travelling ``distance``: ``width + spread * distance``."""
+    return dr.fma(spread, distance, width)
+
+
+def bounce_spread(spread, pdf, delta, max_spread=MAX_SPREAD):
+    """Spread angle after a BSDF sample (see the module docstring for the rule).
+
+    ``pdf``: solid-angle density of the sampled direction; ``delta``: whether the sampled
+    component is a delta lobe (then the spread is unchanged).
+    """
+    lobe = 2.0 * dr.rsqrt(math.pi * dr.maximum(pdf, 1e-20))
+    lobe = dr.select(delta | (pdf <= 0) | dr.isnan(pdf), 0.0, lobe)
+    lobe = dr.select(dr.isfinite(lobe), lobe, max_spread)
+    return dr.minimum(spread + lobe, max_spread)
+
+
+def world_to_uv(q, dp_du, dp_dv):
+    """UV offset whose surface displacement best matches the world vector ``q``.
+
+    Least squares in the tangent plane, as in ``compute_uv_partials``; a degenerate axis
+    (``|dp_dk|`` ~ 0) gets ``DEGENERATE_UV`` when ``q`` is nonzero, parallel ``dp_du``, ``dp_dv``
+    are solved per axis, and non-finite results become ``DEGENERATE_UV``. Not capped.
+    """
+    a00 = dr.dot(dp_du, dp_du)
+    a01 = dr.dot(dp_du, dp_dv)
+    a11 = dr.dot(dp_dv, dp_dv)
+    b0 = dr.dot(dp_du, q)
+    b1 = dr.dot(dp_dv, q)
+    total = a00 + a11
+    ok_u = (a00 > _DEGENERATE_REL * total) & (a00 > 0)
+    ok_v = (a11 > _DEGENERATE_REL * total) & (a11 > 0)
+    det = dr.fma(a00, a11, -a01 * a01)
+    well = ok_u & ok_v & (det > _PARALLEL_SIN2 * a00 * a11)
+
+    inv_det = dr.select(well, dr.rcp(dr.select(well, det, 1.0)), 0.0)
+    u_full = dr.fma(a11, b0, -a01 * b1) * inv_det
+    v_full = dr.fma(a00, b1, -a01 * b0) * inv_det
+    u_axis = b0 / dr.select(ok_u, a00, 1.0)
+    v_axis = b1 / dr.select(ok_v, a11, 1.0)
+    nonzero = dr.squared_norm(q) > 0
+    fill = dr.select(nonzero, DEGENERATE_UV, 0.0)
+    u = dr.select(well, u_full, dr.select(ok_u, u_axis, fill))
+    v = dr.select(well, v_full, dr.select(ok_v, v_axis, fill))
+    return mi.Vector2f(_finite_or(u, DEGENERATE_UV), _finite_or(v, DEGENERATE_UV))
+
+
+def _finite_or(x, value):
+    return dr.select(dr.isfinite(x), x, value)
+
+
+def cap_footprint(duv_dx, duv_dy, max_half_width=MAX_HALF_WIDTH):
+    """(duv_dx, duv_dy) with non-finite components replaced and the u (v) components of both
+    scaled down so that the half-width along u (v), see :func:`half_widths`, is at most
+    ``max_half_width``."""
+    dx = mi.Vector2f(_finite_or(duv_dx.x, DEGENERATE_UV), _finite_or(duv_dx.y, DEGENERATE_UV))
+    dy = mi.Vector2f(_finite_or(duv_dy.x, DEGENERATE_UV), _finite_or(duv_dy.y, DEGENERATE_UV))
+    h_u, h_v = half_widths(dx, dy)
+    s_u = dr.select(h_u > max_half_width, max_half_width / dr.select(h_u > 0, h_u, 1.0), 1.0)
+    s_v = dr.select(h_v > max_half_width, max_half_width / dr.select(h_v > 0, h_v, 1.0), 1.0)
+    return mi.Vector2f(dx.x * s_u, dx.y * s_v), mi.Vector2f(dy.x * s_u, dy.y * s_v)
+
+
+def differential_footprint(p, n, dp_du, dp_dv, o_x, d_x, o_y, d_y):
+    """(duv_dx, duv_dy) at a hit point from the (whole-pixel) offset rays of a ray differential.
+
+    The offset rays are intersected with the tangent plane at ``p`` (normal ``n``); their
+    displacements from ``p`` are mapped to UV by :func:`world_to_uv`. An offset ray parallel to
+    the plane (grazing) gives the capped footprint (:func:`cap_footprint`).
+    """
+    def offset(o_k, d_k):
+        denom = dr.dot(n, d_k)
+        t = dr.dot(n, p - o_k) / dr.select(denom != 0, denom, 1.0)  # no raise in scalar mode
+        q = dr.fma(d_k, t, o_k) - p
+        finite = dr.isfinite(t) & (denom != 0) & dr.all(dr.isfinite(q))
+        big = mi.Vector2f(DEGENERATE_UV, DEGENERATE_UV)
+        return dr.select(finite, world_to_uv(dr.select(finite, q, 0.0), dp_du, dp_dv), big)
+
+    return cap_footprint(offset(o_x, d_x), offset(o_y, d_y))
+
+
+def cone_footprint(width, d, n, dp_du, dp_dv):
+    """(duv_dx, duv_dy) for a ray cone of ``width`` hitting a surface along unit ``d``.
+
+    The cone's disk projects to an ellipse on the tangent plane (normal ``n``); the result is
+    the two orthogonal UV vectors ``(2 h_u, 0)`` and ``(0, 2 h_v)`` of the ellipse's axis-aligned
+    UV bounding box (half-widths h_u, h_v), capped by :func:`cap_footprint`.
+    """
+    cos_t = dr.maximum(dr.abs(dr.dot(d, n)), MIN_COS)
+    across = dr.cross(d, n)
+    length = dr.norm(across)
+    fallback = mi.Frame3f(n).s  # near normal incidence the ellipse is a circle: any axis
+    a1 = dr.select(length > 1e-6, across / dr.select(length > 0, length, 1.0), fallback)
+    a2 = dr.cross(n, a1)
+    r = 0.5 * width
+    e1 = world_to_uv(r * a1, dp_du, dp_dv)
+    e2 = world_to_uv((r / cos_t) * a2, dp_du, dp_dv)
+    h_u = dr.sqrt(dr.fma(e1.x, e1.x, e2.x * e2.x))
+    h_v = dr.sqrt(dr.fma(e1.y, e1.y, e2.y * e2.y))
+    return cap_footprint(mi.Vector2f(2.0 * h_u, 0.0), mi.Vector2f(0.0, 2.0 * h_v))
+
+
+def half_widths(duv_dx, duv_dy):
+    """Footprint half-widths (h_u, h_v) = 1/2 (|du/dx| + |du/dy|), 1/2 (|dv/dx| + |dv/dy|)."""
+    return (0.5 * (dr.abs(duv_dx.x) + dr.abs(duv_dy.x)),
+            0.5 * (dr.abs(duv_dx.y) + dr.abs(duv_dy.y)))

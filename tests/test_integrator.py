@@ -1,0 +1,525 @@
+"""The ``clothpath`` integrator: same estimator as Mitsuba's ``path``, plus pixel footprints.
+
+Images are small (24x24 or 32x32) and use the LLVM variant set in conftest.py.
+"""
+from __future__ import annotations
+
+import math
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from mscloth.integrators import clothpath_class, register_integrators
+from mscloth.integrators import footprint as fp
+
+register_integrators()
+
+
+# ----------------------------------------------------------------------------------------
+# Scenes
+# ----------------------------------------------------------------------------------------
+
+def cornell_dict(integrator: dict) -> dict:
+    """Cornell box (diffuse walls, area light), a rough-metal box, open front to a constant sky."""
+    s = mi.cornell_box()
+    s["sensor"]["film"]["width"] = 24
+    s["sensor"]["film"]["height"] = 24
+    s["sensor"]["film"]["pixel_format"] = "rgba"
+    s["sensor"]["film"]["rfilter"] = {"type": "box"}
+    s["small-box"]["bsdf"] = {"type": "roughconductor", "material": "Au", "alpha": 0.2}
+    s["env"] = {"type": "constant", "radiance": {"type": "rgb", "value": [0.3, 0.3, 0.4]}}
+    s["integrator"] = integrator
+    return s
+
+
+def envmap_dict(integrator: dict) -> dict:
+    """Only an environment map (sky gradient + a small bright sun) lights a floor and spheres
+    (rough metal, glass: delta paths and a relative IOR in Russian roulette)."""
+    h, w = 32, 64
+    theta = (np.arange(h) + 0.5) / h * np.pi
+    phi = (np.arange(w) + 0.5) / w * 2 * np.pi
+    sky = np.zeros((h, w, 3), dtype=np.float32)
+    sky[...] = (0.2 + 0.8 * np.cos(theta)[:, None, None].clip(0, 1)) * np.array([0.4, 0.6, 1.0])
+    sun = np.exp(-((theta[:, None] - 0.6) ** 2 + (phi[None, :] - 2.0) ** 2) / 0.01)
+    sky += (20.0 * sun)[..., None] * np.array([1.0, 0.9, 0.7], dtype=np.float32)
+    return {
+        "type": "scene",
+        "integrator": integrator,
+        "sensor": {
+            "type": "perspective", "fov": 40,
+            "to_world": mi.ScalarTransform4f().look_at(origin=[0, -4, 2.5], target=[0, 0, 0.3],
+                                                       up=[0, 0, 1]),
+            "film": {"type": "hdrfilm", "width": 24, "height": 24, "pixel_format": "rgba",
+                     "rfilter": {"type": "box"}},
+        },
+        "sky": {"type": "envmap", "bitmap": mi.Bitmap(sky.astype(np.float32)),
+                "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], 90)},
+        "floor": {"type": "rectangle", "to_world": mi.ScalarTransform4f().scale(3),
+                  "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.6, 0.5, 0.4]}}},
+        "metal": {"type": "sphere", "center": [-0.8, 0, 0.6], "radius": 0.6,
+                  "bsdf": {"type": "roughconductor", "material": "Cu", "alpha": 0.3}},
+        "glass": {"type": "sphere", "center": [0.8, 0.2, 0.6], "radius": 0.6,
+                  "bsdf": {"type": "dielectric"}},
+    }
+
+
+SCENES = {"cornell": cornell_dict, "envmap": envmap_dict}
+CONFIGS = [{}, {"max_depth": 1}, {"max_depth": 2}, {"max_depth": 3},
+           {"hide_emitters": True}, {"rr_depth": 1}]
+
+
+def render(scene, spp, seed):
+    return np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float64)
+
+
+def load(name, integrator_type, config):
+    return mi.load_dict(SCENES[name](dict(type=integrator_type, **config)))
+
+
+# ----------------------------------------------------------------------------------------
+# 1. Same estimator as `path`
+# ----------------------------------------------------------------------------------------
+
+def test_aov_names_and_channels():
+    scene = load("cornell", "clothpath", {})
+    assert scene.integrator().aov_names() == ["footprint_u", "footprint_v"]
+    img = render(scene, 1, 0)
+    assert img.shape == (24, 24, 6)  # R, G, B, A, footprint_u, footprint_v
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+@pytest.mark.parametrize("config", CONFIGS, ids=lambda c: ",".join(f"{k}={v}" for k, v in c.items()) or "default")
+def test_same_seed_same_image_as_path(name, config):
+    """Same random numbers in the same order: the image (colour and alpha) equals `path`'s
+    up to float rounding."""
+    ref = render(load(name, "path", config), 16, seed=7)
+    ours = render(load(name, "clothpath", config), 16, seed=7)[..., :4]
+    assert np.all(np.isfinite(ours))
+    assert ref[..., :3].max() > 0.05  # the scene is not black
+    diff = np.abs(ours - ref)
+    assert diff.max() <= 1e-4 * max(1.0, ref.max()), diff.max()
+
+
+def _region_means(imgs: np.ndarray, block: int) -> np.ndarray:
+    """Per-pass means over the whole image and over block x block tiles: (passes, regions, 3)."""
+    p, h, w, c = imgs.shape
+    tiles = imgs.reshape(p, h // block, block, w // block, block, c).mean(axis=(2, 4))
+    return np.concatenate([imgs.mean(axis=(1, 2))[:, None, :],
+                           tiles.reshape(p, -1, c)], axis=1)
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+@pytest.mark.parametrize("config", [{}, {"max_depth": 2}, {"hide_emitters": True}],
+                         ids=["default", "max_depth=2", "hide_emitters"])
+def test_agrees_with_path_in_expectation(name, config):
+    """Independent seeds, 16 passes x 64 spp each: the image mean and 4x4 tile means agree
+    with `path` within 5 standard errors, the errors estimated from the pass-to-pass spread."""
+    passes, spp = 16, 64
+    ref_scene = load(name, "path", config)
+    our_scene = load(name, "clothpath", config)
+    ref = np.stack([render(ref_scene, spp, seed=i)[..., :3] for i in range(passes)])
+    ours = np.stack([render(our_scene, spp, seed=1000 + i)[..., :3] for i in range(passes)])
+    r, o = _region_means(ref, 6), _region_means(ours, 6)
+    diff = o.mean(axis=0) - r.mean(axis=0)
+    se = np.sqrt(o.var(axis=0, ddof=1) / passes + r.var(axis=0, ddof=1) / passes)
+    scale = np.abs(r.mean(axis=0)) + 1e-3
+    # A region without noise (e.g. only the light or only the sky) must match to rounding.
+    tol = 5.0 * se + 1e-5 * scale
+    worst = np.max(np.abs(diff) / tol)
+    assert worst <= 1.0, (worst, diff, se)
+
+
+def test_max_depth_one_is_emitters_only():
+    """max_depth=1: only directly visible emitters (the light, the sky); walls black until
+    max_depth=2; max_depth=0: black and transparent."""
+    one = render(load("cornell", "clothpath", {"max_depth": 1}), 4, 0)
+    two = render(load("cornell", "clothpath", {"max_depth": 2}), 4, 0)
+    light = one[..., :3].max(axis=2) > 1.0
+    assert light.any()
+    rest = one[~light][:, :3]
+    # Elsewhere only the sky (0.3, 0.3, 0.4) times the fraction of the pixel that sees it.
+    assert np.allclose(rest[:, 1], rest[:, 0]) and np.allclose(rest[:, 2], rest[:, 0] * 4 / 3)
+    walls = ~light & (one[..., :3].max(axis=2) == 0)
+    assert walls.sum() > 100 and two[walls][:, :3].mean() > 0.02
+    zero = render(load("cornell", "clothpath", {"max_depth": 0}), 4, 0)
+    assert np.all(zero[..., :4] == 0)
+
+
+def test_hide_emitters_hides_light_and_sky():
+    shown = render(load("cornell", "clothpath", {"max_depth": 1}), 4, 0)
+    hidden = render(load("cornell", "clothpath", {"max_depth": 1, "hide_emitters": True}), 4, 0)
+    assert shown[..., :3].max() > 1.0
+    assert np.all(hidden[..., :3] == 0)
+    # Pixels seeing some sky become (partly) transparent; pixels on walls stay opaque.
+    some_sky = (shown[..., 0] > 0) & (shown[..., :3].max(axis=2) < 1.0)
+    walls = shown[..., :3].max(axis=2) == 0
+    assert some_sky.any() and np.all(hidden[some_sky][:, 3] < 1)
+    assert np.all(shown[..., 3] == 1) and np.all(hidden[walls][:, 3] == 1)
+
+
+def test_invalid_parameters():
+    with pytest.raises(Exception, match="max_depth"):
+        mi.load_dict({"type": "clothpath", "max_depth": -2})
+    with pytest.raises(Exception, match="rr_depth"):
+        mi.load_dict({"type": "clothpath", "rr_depth": 0})
+
+
+def test_registration_is_idempotent():
+    cls = clothpath_class()
+    register_integrators()
+    assert clothpath_class() is cls
+    assert isinstance(mi.load_dict({"type": "clothpath"}), cls)
+
+
+# ----------------------------------------------------------------------------------------
+# 2. Footprint at the first hit: the whole pixel, whatever the sample count
+# ----------------------------------------------------------------------------------------
+
+def square_view(n_across: int, res: int = 32, tilt_deg: float = 0.0, sensor: str = "perspective",
+                bsdf: dict | None = None, spp: int | None = None) -> dict:
+    """Camera on the z axis looking at the unit-UV rectangle [-1, 1]^2 (optionally tilted
+    about the y axis, i.e. along u), which spans exactly ``n_across`` of ``res`` pixels."""
+    dist = 4.0
+    film = {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}}
+    to_world = mi.ScalarTransform4f().look_at(origin=[0, 0, dist], target=[0, 0, 0], up=[0, 1, 0])
+    if sensor == "perspective":
+        half = math.atan(res / n_across / dist)  # half the field of view
+        cam = {"type": "perspective", "fov": 2 * math.degrees(half), "near_clip": 1e-4,
+               "to_world": to_world, "film": film}
+    else:  # orthographic: the view spans 2 res / n_across units
+        cam = {"type": "orthographic", "near_clip": 1e-4, "film": film,
+               "to_world": to_world @ mi.ScalarTransform4f().scale([res / n_across, res / n_across, 1])}
+    if spp is not None:
+        cam["sampler"] = {"type": "independent", "sample_count": spp}
+    return {
+        "type": "scene",
+        "integrator": {"type": "clothpath"},
+        "sensor": cam,
+        "square": {"type": "rectangle", "to_world": mi.ScalarTransform4f().rotate([0, 1, 0], tilt_deg),
+                   "bsdf": bsdf or {"type": "diffuse"}},
+        "sky": {"type": "constant"},
+    }
+
+
+@pytest.mark.parametrize("spp", [1, 16])
+def test_first_hit_footprint_is_one_pixel(spp):
+    n = 16
+    img = render(mi.load_dict(square_view(n)), spp, 0)
+    fu, fv = img[..., 3], img[..., 4]
+    c = slice(13, 19)  # pixels well inside the square
+    assert np.allclose(fu[c, c], 1 / (2 * n), rtol=5e-3), fu[c, c]
+    assert np.allclose(fv[c, c], 1 / (2 * n), rtol=5e-3), fv[c, c]
+    assert np.all(fu[:4, :4] == 0)  # sky: no footprint
+
+
+def test_footprint_uses_the_sample_count_from_the_scene_sampler():
+    """The scale to undo is the one Mitsuba applied: spp from the sensor's sampler too."""
+    img = render(mi.load_dict(square_view(16, spp=64)), 0, 0)
+    assert np.allclose(img[14:18, 14:18, 3], 1 / 32, rtol=5e-3)
+
+
+def test_first_hit_footprint_oblique_orthographic():
+    """Orthographic camera: the footprint is exactly one pixel wide; tilting the square by
+    60 degrees about v stretches it along u by 1/cos(60) = 2 and leaves v alone."""
+    n = 16
+    head_on = render(mi.load_dict(square_view(n, sensor="orthographic")), 4, 0)
+    tilted = render(mi.load_dict(square_view(n, sensor="orthographic", tilt_deg=60)), 4, 0)
+    c = slice(14, 18)
+    assert np.allclose(head_on[c, c, 3], 1 / (2 * n), rtol=1e-3)
+    assert np.allclose(tilted[c, c, 3], 2 / (2 * n), rtol=1e-3)
+    assert np.allclose(tilted[c, c, 4], 1 / (2 * n), rtol=1e-3)
+
+
+# ----------------------------------------------------------------------------------------
+# What the BSDF sees: a probe BSDF turns si.duv_dx / si.duv_dy into radiance
+# ----------------------------------------------------------------------------------------
+
+class FootprintProbe(mi.BSDF):
+    """Delta transmission (light passes straight through) with weight ``scale * h_u``, h_u the
+    u half-width of the footprint the BSDF receives: seen against a sky of radiance 1, a
+    pixel's value is ``scale * h_u`` at the probe, without noise."""
+
+    def __init__(self, props):
+        mi.BSDF.__init__(self, props)
+        self.scale = props.get("scale", 1.0)
+        flags = mi.BSDFFlags.DeltaTransmission | mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
+        self.m_components = [flags]
+        self.m_flags = flags
+
+    def sample(self, ctx, si, sample1, sample2, active):
+        bs = dr.zeros(mi.BSDFSample3f)
+        bs.wo = -si.wi
+        bs.pdf = 1.0
+        bs.eta = 1.0
+        bs.sampled_type = mi.UInt32(+mi.BSDFFlags.DeltaTransmission)
+        bs.sampled_component = 0
+        h_u = 0.5 * (dr.abs(si.duv_dx.x) + dr.abs(si.duv_dy.x))
+        return bs, mi.Spectrum(self.scale * h_u) & active
+
+    def eval(self, ctx, si, wo, active):
+        return mi.Spectrum(0.0)
+
+    def pdf(self, ctx, si, wo, active):
+        return mi.Float(0.0)
+
+    def eval_pdf(self, ctx, si, wo, active):
+        return mi.Spectrum(0.0), mi.Float(0.0)
+
+    def to_string(self):
+        return "FootprintProbe[]"
+
+
+mi.register_bsdf("footprint_probe", lambda props: FootprintProbe(props))
+
+
+def test_bsdf_receives_the_first_hit_footprint():
+    n = 16
+    img = render(mi.load_dict(square_view(n, bsdf={"type": "footprint_probe", "scale": 10.0})), 4, 0)
+    c = slice(13, 19)
+    assert np.allclose(img[c, c, 0], 10.0 / (2 * n), rtol=5e-3)
+    assert np.allclose(img[c, c, 0], 10.0 * img[c, c, 3], rtol=1e-4)  # = 10 x the AOV
+
+
+def mirror_scene(mirror_bsdf: dict | None, d1: float = 2.0, d2: float = 2.0) -> dict:
+    """A probe square (half-size 5, so dp_du = 10) seen head-on at total distance d1 + d2:
+    directly (``mirror_bsdf`` None) or via a mirror at distance d1 (45 degrees incidence)."""
+    res, fov = 8, 4.0
+    film = {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}}
+    probe = {"type": "rectangle", "bsdf": {"type": "footprint_probe", "scale": 100.0}}
+    s = {"type": "scene", "integrator": {"type": "clothpath"}, "sky": {"type": "constant"}}
+    if mirror_bsdf is None:
+        s["sensor"] = {"type": "perspective", "fov": fov, "near_clip": 1e-4, "film": film,
+                       "to_world": mi.ScalarTransform4f().look_at(
+                           origin=[0, 0, d1 + d2], target=[0, 0, 0], up=[0, 1, 0])}
+        probe["to_world"] = mi.ScalarTransform4f().scale(5)
+    else:
+        r = 1 / math.sqrt(2)
+        s["sensor"] = {"type": "perspective", "fov": fov, "near_clip": 1e-4, "film": film,
+                       "to_world": mi.ScalarTransform4f().look_at(
+                           origin=[0, -d1 * r, d1 * r], target=[0, 0, 0], up=[0, 0, 1])}
+        s["mirror"] = {"type": "rectangle", "to_world": mi.ScalarTransform4f().scale(0.5),
+                       "bsdf": mirror_bsdf}
+        # Facing back along the reflected ray, centred on it at distance d2.
+        probe["to_world"] = mi.ScalarTransform4f().look_at(
+            origin=[0, d2 * r, d2 * r], target=[0, 0, 0], up=[1, 0, 0]) @ mi.ScalarTransform4f().scale(5)
+    s["probe"] = probe
+    return s
+
+
+def test_footprint_after_a_mirror_equals_the_direct_one_at_equal_distance():
+    """A flat mirror keeps the camera's spread: the probe sees the footprint of the total
+    distance, as if looked at directly from that distance."""
+    direct = render(mi.load_dict(mirror_scene(None)), 4, 0)[3:5, 3:5, 0]
+    mirror = render(mi.load_dict(mirror_scene({"type": "conductor", "material": "none"})), 4, 0)[3:5, 3:5, 0]
+    pixel_angle = 2 * math.tan(math.radians(2.0)) / 8
+    expected = 100.0 * pixel_angle * 4.0 / 10.0 / 2  # scale * (width / |dp_du|) / 2
+    assert np.allclose(direct, expected, rtol=1e-2), (direct, expected)
+    assert np.allclose(mirror, direct, rtol=2e-2), (mirror, direct)
+
+
+def test_footprint_after_a_rough_bounce_is_larger():
+    """A rough bounce widens the cone: the probe behind a rough mirror sees a footprint many
+    times the direct one at the same distance (with the spread rule: pixel spread ~0.009 rad,
+    lobe of GGX alpha 0.2 adds ~0.5 rad). Without widening it would be about equal."""
+    direct = render(mi.load_dict(mirror_scene(None)), 16, 0)[3:5, 3:5, 0].mean()
+    rough = render(mi.load_dict(mirror_scene({"type": "roughconductor", "material": "none",
+                                              "alpha": 0.2})), 16, 0)[3:5, 3:5, 0].mean()
+    assert rough > 10 * direct, (rough, direct)
+    # ... yet bounded: the widest possible cone (MAX_SPREAD over d2 = 2) projected head-on.
+    assert rough < 100.0 * (fp.MAX_SPREAD * 2.0 + 0.1) / 10.0 / 2 * 1.5
+
+
+# ----------------------------------------------------------------------------------------
+# 3. footprint.py, pure functions
+# ----------------------------------------------------------------------------------------
+
+def _np(x):
+    return np.array(x, dtype=np.float64)
+
+
+def test_cone_width_grows_linearly_with_distance():
+    t = mi.Float(np.linspace(0.0, 10.0, 11))
+    w = _np(fp.cone_width(mi.Float(0.05), mi.Float(0.01), t))
+    assert np.allclose(w, 0.05 + 0.01 * np.linspace(0, 10, 11), rtol=1e-6)
+    assert np.allclose(np.diff(w, 2), 0.0, atol=1e-6)
+
+
+def test_camera_cone_of_a_pinhole_and_an_orthographic_camera():
+    o = mi.Point3f(0, 0, 0)
+    d = mi.Vector3f(0, 0, 1)
+    ang = 0.01
+    w, s = fp.camera_cone(o, d, o, mi.Vector3f(math.sin(ang), 0, math.cos(ang)),
+                          o, mi.Vector3f(0, math.sin(ang), math.cos(ang)))
+    assert _np(w)[0] == 0 and abs(_np(s)[0] - ang) < 1e-6
+    w, s = fp.camera_cone(o, d, mi.Point3f(0.2, 0, 0), d, mi.Point3f(0, 0.2, 0), d)
+    assert abs(_np(w)[0] - 0.2) < 1e-7 and _np(s)[0] == 0
+
+
+def test_bounce_spread_rule():
+    spread = mi.Float(0.01, 0.01, 0.01, 0.01, 0.01)
+    pdf = mi.Float(1.0, 100.0, 10.0, 1 / math.pi, 0.0)
+    delta = mi.Bool(True, False, False, False, False)
+    out = _np(fp.bounce_spread(spread, pdf, delta))
+    assert out[0] == pytest.approx(0.01)  # delta: unchanged
+    assert out[1] == pytest.approx(0.01 + 2 / math.sqrt(math.pi * 100), rel=1e-5)
+    assert out[2] == pytest.approx(0.01 + 2 / math.sqrt(math.pi * 10), rel=1e-5)
+    assert out[1] < out[2] < out[3]  # rougher lobes (lower density) spread more
+    assert out[3] == pytest.approx(fp.MAX_SPREAD)  # diffuse: capped
+    assert out[4] == pytest.approx(0.01)  # no sample (pdf 0): unchanged
+    assert np.all(np.isfinite(out))
+
+
+def test_differential_footprint_matches_mitsuba_uv_partials():
+    """On a well-parameterised surface the robust solve equals compute_uv_partials."""
+    scene = mi.load_dict({"type": "scene", "s": {"type": "sphere", "radius": 1.5}})
+    rng = np.random.default_rng(1)
+    n = 64
+    o = mi.Point3f(*(rng.normal(size=(3, n)) * 0.15 + np.array([[0.2], [0.1], [5.0]])))
+    d = dr.normalize(mi.Vector3f(*(rng.normal(size=(3, n)) * 0.05 + np.array([[0], [0], [-1.0]]))))
+    ray = mi.RayDifferential3f(o, d)
+    ray.o_x = o + mi.Vector3f(0.001, 0, 0)
+    ray.o_y = o + mi.Vector3f(0, 0.002, 0)
+    ray.d_x = dr.normalize(d + mi.Vector3f(0.003, 0.001, 0))
+    ray.d_y = dr.normalize(d + mi.Vector3f(-0.001, 0.004, 0))
+    ray.has_differentials = True
+    si = scene.ray_intersect(mi.Ray3f(ray))
+    assert dr.all(si.is_valid())
+    dx, dy = fp.differential_footprint(si.p, si.n, si.dp_du, si.dp_dv,
+                                       ray.o_x, ray.d_x, ray.o_y, ray.d_y)
+    si.compute_uv_partials(ray)
+    assert np.allclose(_np(dx), _np(si.duv_dx), rtol=1e-3, atol=1e-6)
+    assert np.allclose(_np(dy), _np(si.duv_dy), rtol=1e-3, atol=1e-6)
+
+
+def test_cone_footprint_head_on_and_oblique():
+    dp_du, dp_dv = mi.Vector3f(2, 0, 0), mi.Vector3f(0, 3, 0)
+    n = mi.Vector3f(0, 0, 1)
+    w = mi.Float(0.06)
+    dx, dy = fp.cone_footprint(w, mi.Vector3f(0, 0, -1), n, dp_du, dp_dv)
+    hu, hv = (float(_np(h)[0]) for h in fp.half_widths(dx, dy))
+    assert hu == pytest.approx(0.03 / 2, rel=1e-5) and hv == pytest.approx(0.03 / 3, rel=1e-5)
+    assert _np(dx)[1, 0] == 0 and _np(dy)[0, 0] == 0  # axis-aligned box
+    # 60 degrees from the normal, in the x-z plane: stretched by 2 along u only.
+    th = math.radians(60)
+    dx, dy = fp.cone_footprint(w, mi.Vector3f(math.sin(th), 0, -math.cos(th)), n, dp_du, dp_dv)
+    hu, hv = (float(_np(h)[0]) for h in fp.half_widths(dx, dy))
+    assert hu == pytest.approx(2 * 0.03 / 2, rel=1e-4) and hv == pytest.approx(0.03 / 3, rel=1e-4)
+    # Rotation-free: at 45 degrees azimuth the box covers the rotated ellipse.
+    d = mi.Vector3f(math.sin(th) / math.sqrt(2), math.sin(th) / math.sqrt(2), -math.cos(th))
+    dx, dy = fp.cone_footprint(w, d, n, mi.Vector3f(1, 0, 0), mi.Vector3f(0, 1, 0))
+    hu, hv = (float(_np(h)[0]) for h in fp.half_widths(dx, dy))
+    r_major, r_minor = 0.03 * 2, 0.03
+    expect = math.sqrt((r_major ** 2 + r_minor ** 2) / 2)
+    assert hu == pytest.approx(expect, rel=1e-4) and hv == pytest.approx(expect, rel=1e-4)
+
+
+# ----------------------------------------------------------------------------------------
+# 4. Degenerate parameterisations and grazing angles
+# ----------------------------------------------------------------------------------------
+
+def _assert_capped(duv_dx, duv_dy):
+    for v in (duv_dx, duv_dy):
+        assert np.all(np.isfinite(_np(v)))
+    for h in fp.half_widths(duv_dx, duv_dy):
+        assert np.all(_np(h) <= fp.MAX_HALF_WIDTH * (1 + 1e-6))
+
+
+def test_degenerate_and_grazing_footprints_are_finite():
+    n = mi.Vector3f(0, 0, 1)
+    zero = mi.Vector3f(0, 0, 0)
+    # dp_du = 0 (a pole): the u extent is the whole range, v is regular.
+    dx, dy = fp.cone_footprint(mi.Float(0.04), mi.Vector3f(0, 0, -1), n, zero, mi.Vector3f(math.pi, 0, 0))
+    hu, hv = (float(_np(h)[0]) for h in fp.half_widths(dx, dy))
+    assert hu == pytest.approx(fp.MAX_HALF_WIDTH) and hv == pytest.approx(0.02 / math.pi, rel=1e-5)
+    # Both zero, parallel, grazing, zero width: all finite and within the cap.
+    cases = [
+        (mi.Float(0.04), mi.Vector3f(0, 0, -1), zero, zero),
+        (mi.Float(0.04), mi.Vector3f(0, 0, -1), mi.Vector3f(1, 0, 0), mi.Vector3f(2, 0, 0)),
+        (mi.Float(0.04), mi.Vector3f(1, 0, 0), mi.Vector3f(1, 0, 0), mi.Vector3f(0, 1, 0)),
+        (mi.Float(0.0), mi.Vector3f(0, 0, -1), mi.Vector3f(1e-30, 0, 0), mi.Vector3f(0, 1, 0)),
+        (mi.Float(1e30), mi.Vector3f(0, 0, -1), mi.Vector3f(1, 0, 0), mi.Vector3f(0, 1, 0)),
+    ]
+    for w, d, du, dv in cases:
+        _assert_capped(*fp.cone_footprint(w, d, n, du, dv))
+    # An offset ray parallel to the tangent plane.
+    p = mi.Point3f(0, 0, 0)
+    o = mi.Point3f(0, 0, 1)
+    _assert_capped(*fp.differential_footprint(p, n, mi.Vector3f(1, 0, 0), mi.Vector3f(0, 1, 0),
+                                              o, mi.Vector3f(1, 0, 0), o, mi.Vector3f(0, 0, -1)))
+
+
+def test_sphere_pole_gives_finite_footprints():
+    """Camera rays hitting a sphere at its pole, where dp_du = 0: finite AOVs and colours,
+    u extent capped at the whole range, through the render loop and through sample()."""
+    res = 33  # odd: the centre pixel holds the pole
+    scene = mi.load_dict({
+        "type": "scene", "integrator": {"type": "clothpath"}, "sky": {"type": "constant"},
+        "sensor": {"type": "perspective", "fov": 30, "film": {"type": "hdrfilm", "width": res, "height": res,
+                                                               "rfilter": {"type": "box"}},
+                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0])},
+        "ball": {"type": "sphere", "bsdf": {"type": "footprint_probe", "scale": 1.0}},
+    })
+    img = render(scene, 16, 0)
+    assert np.all(np.isfinite(img))
+    assert np.all(img[..., 3:] <= fp.MAX_HALF_WIDTH)
+    c = res // 2
+    assert img[c, c, 3] > 10 * img[c, c, 4]  # many azimuths meet in the pole's pixel
+
+    # Exactly at the pole, through sample() with a hand-made differential (not scaled: spp 1).
+    sampler = mi.load_dict({"type": "independent", "sample_count": 1})
+    sampler.seed(0, 1)
+    ray = mi.RayDifferential3f(mi.Point3f(0, 0, 5), mi.Vector3f(0, 0, -1))
+    ray.o_x = ray.o
+    ray.o_y = ray.o
+    ray.d_x = dr.normalize(mi.Vector3f(0.01, 0, -1))
+    ray.d_y = dr.normalize(mi.Vector3f(0, 0.01, -1))
+    ray.has_differentials = True
+    si = scene.ray_intersect(mi.Ray3f(ray))
+    assert dr.all(si.dp_du == 0)  # really the degenerate point
+    spec, valid, aovs = scene.integrator().sample(scene, sampler, ray, None, True)
+    fu, fv = float(_np(aovs[0])[0]), float(_np(aovs[1])[0])
+    assert bool(_np(valid)[0]) and math.isfinite(fu) and math.isfinite(fv)
+    assert fu == pytest.approx(fp.MAX_HALF_WIDTH)
+    assert fv == pytest.approx(0.5 * 4 * 0.01 / math.pi, rel=1e-2)  # dv/dx = |dp|/|dp_dv|, pi
+    assert np.all(np.isfinite(_np(spec)))
+
+
+# ----------------------------------------------------------------------------------------
+# Scalar variant (Python bools, no symbolic loop): same image as `path` there too
+# ----------------------------------------------------------------------------------------
+
+_SCALAR_SCRIPT = r"""
+import mscloth, mitsuba as mi, numpy as np
+mi.set_variant("scalar_rgb")
+mi.set_log_level(mi.LogLevel.Error)
+from mscloth.integrators import register_integrators
+register_integrators()
+def scene(kind, **kw):
+    s = mi.cornell_box()
+    s["sensor"]["film"].update(width=6, height=6, pixel_format="rgba")
+    s["small-box"]["bsdf"] = {"type": "roughconductor", "alpha": 0.2}
+    s["env"] = {"type": "constant", "radiance": 0.2}
+    s["integrator"] = dict(type=kind, **kw)
+    return mi.load_dict(s)
+worst = 0.0
+for kw in [{}, {"max_depth": 1, "hide_emitters": True}, {"max_depth": 2, "rr_depth": 1}]:
+    a = np.array(mi.render(scene("path", **kw), spp=16, seed=3))
+    b = np.array(mi.render(scene("clothpath", **kw), spp=16, seed=3))
+    assert np.all(np.isfinite(b))
+    assert a[..., :3].max() > 0 or kw.get("hide_emitters")
+    worst = max(worst, float(np.abs(a - b[..., :4]).max()))
+print("WORST", worst)
+"""
+
+
+def test_scalar_variant_matches_path():
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", _SCALAR_SCRIPT], capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    worst = float(out.stdout.split("WORST")[1])
+    assert worst <= 1e-4, worst
