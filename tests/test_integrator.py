@@ -75,12 +75,20 @@ def render(scene, spp, seed):
 
 
 def load(name, integrator_type, config):
+    if integrator_type == "clothpath":
+        config = dict({"footprint_aovs": True}, **config)
     return mi.load_dict(SCENES[name](dict(type=integrator_type, **config)))
 
 
 # ----------------------------------------------------------------------------------------
 # 1. Same estimator as `path`
 # ----------------------------------------------------------------------------------------
+
+def test_aovs_are_opt_in():
+    plain = mi.load_dict(SCENES["cornell"](dict(type="clothpath")))
+    assert plain.integrator().aov_names() == []
+    assert render(plain, 1, 0).shape == (24, 24, 4)
+
 
 def test_aov_names_and_channels():
     scene = load("cornell", "clothpath", {})
@@ -195,7 +203,7 @@ def square_view(n_across: int, res: int = 32, tilt_deg: float = 0.0, sensor: str
         cam["sampler"] = {"type": "independent", "sample_count": spp}
     return {
         "type": "scene",
-        "integrator": {"type": "clothpath"},
+        "integrator": {"type": "clothpath", "footprint_aovs": True},
         "sensor": cam,
         "square": {"type": "rectangle", "to_world": mi.ScalarTransform4f().rotate([0, 1, 0], tilt_deg),
                    "bsdf": bsdf or {"type": "diffuse"}},
@@ -288,7 +296,7 @@ def mirror_scene(mirror_bsdf: dict | None, d1: float = 2.0, d2: float = 2.0) -> 
     res, fov = 8, 4.0
     film = {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}}
     probe = {"type": "rectangle", "bsdf": {"type": "footprint_probe", "scale": 100.0}}
-    s = {"type": "scene", "integrator": {"type": "clothpath"}, "sky": {"type": "constant"}}
+    s = {"type": "scene", "integrator": {"type": "clothpath", "footprint_aovs": True}, "sky": {"type": "constant"}}
     if mirror_bsdf is None:
         s["sensor"] = {"type": "perspective", "fov": fov, "near_clip": 1e-4, "film": film,
                        "to_world": mi.ScalarTransform4f().look_at(
@@ -455,7 +463,7 @@ def test_sphere_pole_gives_finite_footprints():
     u extent capped at the whole range, through the render loop and through sample()."""
     res = 33  # odd: the centre pixel holds the pole
     scene = mi.load_dict({
-        "type": "scene", "integrator": {"type": "clothpath"}, "sky": {"type": "constant"},
+        "type": "scene", "integrator": {"type": "clothpath", "footprint_aovs": True}, "sky": {"type": "constant"},
         "sensor": {"type": "perspective", "fov": 30, "film": {"type": "hdrfilm", "width": res, "height": res,
                                                                "rfilter": {"type": "box"}},
                    "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0])},

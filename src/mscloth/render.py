@@ -56,7 +56,9 @@ def write_images(image, exr_path: Path) -> tuple[Path, Path]:
     """Write ``image`` as linear EXR and sRGB PNG beside it (same stem); atomically."""
     exr_path = Path(exr_path)
     png_path = exr_path.with_suffix(".png")
-    bitmap = mi.Bitmap(image)
+    # The colour channels only: clothpath appends its footprint AOVs after RGB.
+    rgb = mi.TensorXf(image)[..., :3] if image.shape[-1] > 3 else image
+    bitmap = mi.Bitmap(rgb)
     with atomic_path(exr_path) as tmp:
         bitmap.write(tmp)
     png = bitmap.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.UInt8, srgb_gamma=True)

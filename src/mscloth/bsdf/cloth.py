@@ -497,7 +497,8 @@ def make_cloth_class():
                 fp = self._footprint(si, fr)
                 texels = self._mixture_texels(fr, fp)
                 tex_probs = [self._lobe_probabilities(t_, enabled) for t_ in texels]
-                _, yarn_mean = self._eval_footprint(fr, fp, mi.Vector3f(0, 0, 1), [False] * 6, sample2)
+                fd = self.footprint_data
+                yarn_mean = fd.scalar_sats.rect_integral(fd.GAP, fp["x0"], fp["y0"], fp["x1"], fp["y1"]) / fp["area"]
                 eps_c, eps_d, m_tex = self._mixture_weights(enabled, yarn_mean)
                 eps_d = dr.select(fp["use"], eps_d, 0.0)
                 eps_c = dr.select(fp["use"], eps_c, 0.0)

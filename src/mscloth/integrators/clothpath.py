@@ -99,9 +99,14 @@ def make_clothpath_class():
         def __init__(self, props):
             mi.SamplingIntegrator.__init__(self, props)
             self.max_depth, self.rr_depth = _read_properties(props)
+            # Off by default: an RGB image from mi.render, as with Mitsuba's `path`.
+            self.footprint_aovs = props.get("footprint_aovs", False)
+            if not isinstance(self.footprint_aovs, bool):
+                raise ValueError('clothpath: "footprint_aovs" must be a boolean, '
+                                 f"got {self.footprint_aovs!r}")
 
         def aov_names(self):
-            return ["footprint_u", "footprint_v"]
+            return ["footprint_u", "footprint_v"] if self.footprint_aovs else []
 
         def to_string(self):
             depth = -1 if self.max_depth == _UINT32_MAX else self.max_depth
@@ -275,7 +280,8 @@ def make_clothpath_class():
                 while state[10]:
                     state = loop_body(state)
             result, valid_ray, aov_u, aov_v = state[4], state[7], state[14], state[15]
-            return dr.select(valid_ray, result, 0.0), valid_ray, [aov_u, aov_v]
+            aovs = [aov_u, aov_v] if self.footprint_aovs else []
+            return dr.select(valid_ray, result, 0.0), valid_ray, aovs
 
     ClothPathIntegrator.__name__ = "ClothPathIntegrator"
     ClothPathIntegrator.__qualname__ = "ClothPathIntegrator"

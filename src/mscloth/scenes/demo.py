@@ -10,7 +10,7 @@ def demo_scene(resolution: int = 512, max_depth: int = 8) -> dict:
     T = mi.ScalarTransform4f
     return {
         "type": "scene",
-        "integrator": {"type": "path", "max_depth": max_depth},
+        "integrator": {"type": "clothpath", "max_depth": max_depth},
         "sensor": {
             "type": "perspective",
             "fov": 40,
