@@ -273,6 +273,24 @@ def make_cloth_class():
             return (fd.cluster_visibility(cluster, pt["wi"], pt["flip"])
                     * fd.cluster_visibility(cluster, wo_up, pt["flip"] == up))
 
+        def _pdf_point(self, pt, wo, enabled, probs):
+            """Fibre-level pdf alone (the footprint mixture needs four of them)."""
+            wi, t = pt["wi"], pt["tangent"]
+            up = wo.z > 0.0
+            valid = (wi.z > spongecake.COS_EPSILON) & (dr.abs(wo.z) > spongecake.COS_EPSILON)
+            pdf = mi.Float(0.0)
+            if enabled[SHEEN]:
+                pdf += probs[SHEEN] * dr.select(up, sheen.pdf_sheen(wi, wo, self.sheen_roughness), 0.0)
+            if enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]:
+                side_ok = (up & enabled[SPECULAR_REFLECTION]) | (~up & enabled[SPECULAR_TRANSMISSION])
+                pdf += probs[SPECULAR_REFLECTION] * dr.select(side_ok, spongecake.pdf_specular(wi, wo, t, self.roughness), 0.0)
+            cosine = dr.abs(wo.z) * dr.inv_pi
+            if enabled[DIFFUSE_REFLECTION]:
+                pdf += probs[DIFFUSE_REFLECTION] * dr.select(up, cosine, 0.0)
+            if enabled[DIFFUSE_TRANSMISSION]:
+                pdf += probs[DIFFUSE_TRANSMISSION] * dr.select(up, 0.0, cosine)
+            return dr.select(valid, pdf, 0.0)
+
         def _eval_pdf_point(self, pt, wo, enabled, probs, want_pdf=True):
             """Fibre-level (one texel) non-delta f*|cos o| and pdf, mirrored frame."""
             wi, t, yarn, k = pt["wi"], pt["tangent"], pt["yarn"], pt["k"]
@@ -428,7 +446,7 @@ def make_cloth_class():
         def _mixture_pdf(self, texels, probs, wo, enabled, eps_c, m_tex):
             pdf = mi.Float(0.0)
             for pt, pr in zip(texels, probs):
-                pdf += self._eval_pdf_point(pt, wo, enabled, pr)[1]
+                pdf += self._pdf_point(pt, wo, enabled, pr)
             return m_tex * 0.25 * pdf + eps_c * dr.abs(wo.z) * (0.5 * dr.inv_pi)
 
         def _hash2(self, si, wo):

@@ -39,9 +39,13 @@ class ResidualSATs:
         self.data = flat_array(sat)
         self.mean = flat_array(np.asarray(mean, dtype=np.float64))
         self.total = flat_array(sat[:, self.H, self.W])  # ~0 by construction
+        # The last column (x = W) and last row (y = H) alone: the periodic decomposition
+        # reads them at every corner, and 1-D interpolation needs 2 reads instead of 4.
+        self.last_col = flat_array(sat[:, :, self.W])
+        self.last_row = flat_array(sat[:, self.H, :])
 
     def nbytes(self) -> int:
-        return 4 * (len(self.data) + 2 * self.channels)
+        return 4 * (len(self.data) + len(self.last_col) + len(self.last_row) + 2 * self.channels)
 
     def _lookup(self, base, x, y):
         """Bilinear value of the channel at flat offset ``base`` at grid coords 0<=x<=W, 0<=y<=H."""
@@ -59,15 +63,23 @@ class ResidualSATs:
         v11 = gather(self.data, i00 + stride + 1)
         return dr.lerp(dr.lerp(v00, v01, fx), dr.lerp(v10, v11, fx), fy)
 
-    def _cumulative(self, base, total, x, y):
+    def _lookup_1d(self, data, channel, n, t):
+        """Linear interpolation of a per-channel 1-D table of n + 1 values at 0 <= t <= n."""
+        t = dr.clip(t, 0.0, float(n))
+        i = dr.minimum(mi.UInt32(dr.floor(t)), n - 1)
+        f = t - mi.Float(i)
+        base = channel * (n + 1) + i
+        return dr.lerp(gather(data, base), gather(data, base + 1), f)
+
+    def _cumulative(self, base, total, x, y, channel=None):
         """Residual integral over [0, x] x [0, y] of the periodically repeated tile."""
         W, H = float(self.W), float(self.H)
         qx = dr.floor(x / W)
         qy = dr.floor(y / H)
         rx = dr.clip(x - qx * W, 0.0, W)
         ry = dr.clip(y - qy * H, 0.0, H)
-        return (qx * qy * total + qx * self._lookup(base, W, ry) + qy * self._lookup(base, rx, H)
-                + self._lookup(base, rx, ry))
+        return (qx * qy * total + qx * self._lookup_1d(self.last_col, channel, self.H, ry)
+                + qy * self._lookup_1d(self.last_row, channel, self.W, rx) + self._lookup(base, rx, ry))
 
     def rect_integral(self, channel, x0, y0, x1, y1):
         """Integral of the original values of ``channel`` (int or per-lane UInt32) over the
@@ -76,8 +88,8 @@ class ResidualSATs:
         base = channel * ((self.H + 1) * (self.W + 1))
         total = gather(self.total, channel)
         mean = gather(self.mean, channel)
-        residual = (self._cumulative(base, total, x1, y1) - self._cumulative(base, total, x0, y1)
-                    - self._cumulative(base, total, x1, y0) + self._cumulative(base, total, x0, y0))
+        residual = (self._cumulative(base, total, x1, y1, channel) - self._cumulative(base, total, x0, y1, channel)
+                    - self._cumulative(base, total, x1, y0, channel) + self._cumulative(base, total, x0, y0, channel))
         return residual + mean * (x1 - x0) * (y1 - y0)
 
 
