@@ -3,8 +3,18 @@
 ``import mscloth`` first: it points DRJIT_LIBLLVM_PATH at a usable libLLVM before
 Dr.Jit's LLVM backend starts.
 """
-import mscloth  # noqa: F401  (sets DRJIT_LIBLLVM_PATH)
-import mitsuba as mi
+import atexit
+import os
+import shutil
+import tempfile
+
+# Multi-scale tables go to a fresh cache per test session: tests never touch the user's
+# ~/.cache/mscloth, and every run exercises the table builds.
+os.environ["MSCLOTH_CACHE"] = tempfile.mkdtemp(prefix="mscloth-test-cache-")
+atexit.register(shutil.rmtree, os.environ["MSCLOTH_CACHE"], True)
+
+import mscloth  # noqa: E402,F401  (sets DRJIT_LIBLLVM_PATH)
+import mitsuba as mi  # noqa: E402
 
 mi.set_variant("llvm_ad_rgb")
 
