@@ -12,30 +12,19 @@ from __future__ import annotations
 
 import mitsuba as mi
 
-from ..errors import ClothError
+from ..plugin_registry import plugin_class
 
-_registered: dict[str, type] = {}
+
+def clothpath_class():
+    """The ``clothpath`` class for the active variant (registering it the first time)."""
+    from .clothpath import make_clothpath_class
+
+    return plugin_class("clothpath", mi.register_integrator, make_clothpath_class)
 
 
 def register_integrators() -> None:
     """Register ``clothpath`` for the active variant; a second call is a no-op."""
-    variant = mi.variant()
-    if variant is None:
-        raise ClothError("register_integrators(): no Mitsuba variant is set; call "
-                         "mi.set_variant(mscloth.default_variant()) first")
-    if variant in _registered:
-        return
-    from .clothpath import make_clothpath_class
-
-    cls = make_clothpath_class()
-    mi.register_integrator("clothpath", lambda props: cls(props))
-    _registered[variant] = cls
-
-
-def clothpath_class():
-    """The ``clothpath`` class registered for the active variant (registering if needed)."""
-    register_integrators()
-    return _registered[mi.variant()]
+    clothpath_class()
 
 
 __all__ = ["clothpath_class", "register_integrators"]
