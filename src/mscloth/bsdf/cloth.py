@@ -100,6 +100,28 @@ back side sees the same maps mirrored through the surface.
      - float
      - 0.2
      - Optical thickness of the fuzz, >= 0 (0 disables sheen).
+   * - multiscale
+     - boolean
+     - true
+     - Shade whole pixel footprints (summed-area tables + CCV); needs an integrator
+       that sets ``si.duv_dx/dy`` such as ``clothpath``.
+   * - visibility
+     - boolean
+     - true
+     - Shadowing x masking by the cloth's height field.
+   * - unbiased_ccv
+     - boolean
+     - false
+     - Per-cluster control-variate base (unbiased, 8x the directional SAT memory).
+   * - parallax
+     - boolean
+     - false
+     - Shift lookups to where the view ray meets the height field (Alg. 3); makes
+       the BSDF non-reciprocal, hence off by default.
+   * - direction_bins, visibility_bins, clusters
+     - integer
+     - 16, 8, 8
+     - Table sizes of multi-scale shading.
 
 Per channel, diffuse_albedo + diffuse_transmittance + max(specular_albedo,
 specular_transmittance) must not exceed 1, so that no configuration creates
@@ -155,8 +177,9 @@ def make_cloth_class():
             self._upload_maps(self.maps)
             self.multiscale = p.multiscale
             self.use_visibility = p.visibility
+            self.use_parallax = p.parallax
             self.footprint_data = None
-            if p.multiscale or p.visibility:
+            if p.multiscale or p.visibility or p.parallax:
                 from ..precompute.tables import load_or_build
 
                 tables = load_or_build(self.maps, p.roughness, dr=p.direction_bins, dv=p.visibility_bins,
@@ -192,6 +215,16 @@ def make_cloth_class():
             # Texel coordinates of si.uv: one tile is tile_w x tile_h texels.
             x = si.uv.x * self.uv_scale * self.tile_w
             y = si.uv.y * self.uv_scale_v * self.tile_h
+            if self.use_parallax:
+                # Look up (and centre the footprint on) the texel the view ray reaches
+                # first in the height field; the table covers the front side only.
+                fx = x / self.tile_w
+                fy = y / self.tile_h
+                ix = mi.UInt32(dr.clip(dr.floor((fx - dr.floor(fx)) * self.tile_w), 0, self.tile_w - 1))
+                iy = mi.UInt32(dr.clip(dr.floor((fy - dr.floor(fy)) * self.tile_h), 0, self.tile_h - 1))
+                dx, dy = self.footprint_data.parallax_offset(ix, iy, wi)
+                x = dr.select(flip, x, x + dx)
+                y = dr.select(flip, y, y + dy)
             return dict(flip=flip, sign=sign, wi=wi, k=k, t_sheen_i=t_sheen_i, x=x, y=y, active=active)
 
         def _texel(self, fr, x, y):

@@ -27,6 +27,7 @@ class FootprintData:
         self.cluster_vis = flat_array(cvis)
         # Cluster ids as floats (exact for small integers): one gatherable array type.
         self.cluster_id = flat_array(np.maximum(tables.cluster_id, 0))
+        self.parallax = flat_array(tables.parallax)  # (H, W, dv*dv, 2) texel offsets
         self.with_sats = with_sats
         self.per_cluster = with_sats and getattr(tables, "d_sat_cluster", None) is not None
         if with_sats:
@@ -73,6 +74,18 @@ class FootprintData:
         for b, wt in zip(bins, weights):
             v += wt * gather(self.cluster_vis, base + b)
         return v
+
+    def parallax_offset(self, ix, iy, w):
+        """Texel offset (dx, dy) from texel (ix, iy) to where a view ray from direction ``w``
+        (upper hemisphere, front side) first meets the height field (Alg. 3)."""
+        bins, weights = hemisphere_bins(w, self.dv)
+        base = ((iy * self.W + ix) * self.n_dirs)
+        dx = mi.Float(0.0)
+        dy = mi.Float(0.0)
+        for b, wt in zip(bins, weights):
+            dx += wt * gather(self.parallax, 2 * (base + b))
+            dy += wt * gather(self.parallax, 2 * (base + b) + 1)
+        return dx, dy
 
     def cluster_of(self, ix, iy):
         return mi.UInt32(gather(self.cluster_id, iy * self.W + ix))

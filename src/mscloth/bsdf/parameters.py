@@ -45,6 +45,7 @@ BOOL_PARAMETERS = {
     "multiscale": (True, "shade whole pixel footprints (summed-area tables + CCV)"),
     "visibility": (True, "shadowing and masking by the cloth's height field"),
     "unbiased_ccv": (False, "per-cluster base of the control variates (unbiased, 8x the SAT memory)"),
+    "parallax": (False, "shift lookups to where the view ray meets the height field (not reciprocal)"),
 }
 
 
@@ -62,6 +63,7 @@ class ClothParameters:
     multiscale: bool = True
     visibility: bool = True
     unbiased_ccv: bool = False
+    parallax: bool = False
     direction_bins: int = 16
     visibility_bins: int = 8
     clusters: int = 8
