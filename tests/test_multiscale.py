@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import mscloth
+from mscloth import validation
 
 from cloth_fixtures import N_TEXELS, make_si, non_delta_context
 
@@ -28,38 +29,15 @@ def unit(v):
 
 
 def footprint_si(n, uv, half_texels, wi):
-    """n lanes at ``uv`` with a square footprint of half-width ``half_texels`` texels."""
-    si = make_si(mi.Vector3f(unit(wi)), mi.Point2f(uv), n)
-    d = 2.0 * half_texels / N_TEXELS  # |du/dx| + |du/dy| = 2 * half-width
-    si.duv_dx = mi.Vector2f(d, 0.0)
-    si.duv_dy = mi.Vector2f(0.0, d)
-    return si
+    return validation.footprint_interaction(n, uv, half_texels, N_TEXELS, wi)
 
 
-def multiscale_expectation(bsdf, uv, half, wi, wo, n=20000, seed=1):
-    """Mean of the footprint eval over its control-variate residual texel (its expectation)."""
-    ctx = non_delta_context()
-    si = footprint_si(n, uv, half, wi)
-    fr = bsdf._frame(si, True)
-    fp = bsdf._footprint(si, fr)
-    wo_v = mi.Vector3f(unit(wo))
-    rng = np.random.default_rng(seed)
-    xi = mi.Point2f(rng.random(n), rng.random(n))
-    value, _ = bsdf._eval_footprint(fr, fp, wo_v, bsdf._enabled(ctx), xi)
-    v = np.array(value)[0]
-    return v.mean(), v.std() / np.sqrt(n), bool(np.array(fp["use"])[0])
+def multiscale_expectation(bsdf, uv, half, wi, wo):
+    return validation.footprint_expectation(bsdf, uv, half, N_TEXELS, wi, wo)
 
 
-def brute_force(params, uv, half, wi, wo, n=200000, seed=2):
-    """Monte Carlo average of the fibre-level BSDF over the footprint's texels."""
-    point = mi.load_dict(dict(params, multiscale=False))
-    rng = np.random.default_rng(seed)
-    centre = np.array(uv)
-    offsets = (rng.random((n, 2)) * 2.0 - 1.0) * half / N_TEXELS
-    p = centre + offsets
-    si = make_si(mi.Vector3f(unit(wi)), mi.Point2f(p[:, 0], p[:, 1]), n)
-    v = np.array(point.eval(non_delta_context(), si, mi.Vector3f(unit(wo))))[0]
-    return v.mean(), v.std() / np.sqrt(n)
+def brute_force(params, uv, half, wi, wo):
+    return validation.brute_force(params, uv, half, N_TEXELS, wi, wo)
 
 
 # Half-widths (texels) of square footprints of 1, 4, 16, 64, 256 texels, and one 3.5 tiles wide.

@@ -200,6 +200,11 @@ def make_cloth_class():
             self.fibre_texture = mi.Texture2f(mi.TensorXf(fibre), **kwargs)
             self.color_texture = mi.Texture2f(mi.TensorXf(color), **kwargs)
             self.tile_h, self.tile_w = maps.resolution
+            # Uniformly coloured yarns (the common case) need no albedo SAT reads.
+            yarn_colours = maps.albedo[maps.gap > 0]
+            self.uniform_yarn_albedo = None
+            if len(yarn_colours) and np.all(yarn_colours == yarn_colours[0]):
+                self.uniform_yarn_albedo = [float(c) for c in yarn_colours[0]]
 
         # ------------------------------------------------------------------
         # Shading state: the viewer's frame, a texel, a footprint
@@ -387,7 +392,10 @@ def make_cloth_class():
 
             yarn_mean = mean(sats, fd.GAP)
             inv_yarn = dr.select(yarn_mean > 1e-6, dr.rcp(yarn_mean), 0.0)
-            yarn_albedo = mi.Color3f(*[mean(sats, fd.ALBEDO + c) * inv_yarn for c in range(3)])
+            if self.uniform_yarn_albedo is not None:
+                yarn_albedo = mi.Color3f(*self.uniform_yarn_albedo)
+            else:
+                yarn_albedo = mi.Color3f(*[mean(sats, fd.ALBEDO + c) * inv_yarn for c in range(3)])
 
             # The texel of the control-variate residual, uniform in the footprint.
             p = self._texel(fr, fp["x0"] + xi.x * (fp["x1"] - fp["x0"]), fp["y0"] + xi.y * (fp["y1"] - fp["y0"]))

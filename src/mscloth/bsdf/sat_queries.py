@@ -20,11 +20,11 @@ def flat_array(values: np.ndarray):
     return mi.TensorXf(values).array
 
 
-def gather(source, index):
-    """``source[index]`` per lane, in JIT and scalar variants alike."""
+def gather(source, index, active=True):
+    """``source[index]`` per lane (0 where not ``active``), in JIT and scalar variants."""
     if dr.is_jit_v(mi.Float):
-        return dr.gather(mi.Float, source, index)
-    return source[int(index)]
+        return dr.gather(mi.Float, source, index, active)
+    return source[int(index)] if active else 0.0
 
 
 class ResidualSATs:
@@ -63,13 +63,14 @@ class ResidualSATs:
         v11 = gather(self.data, i00 + stride + 1)
         return dr.lerp(dr.lerp(v00, v01, fx), dr.lerp(v10, v11, fx), fy)
 
-    def _lookup_1d(self, data, channel, n, t):
-        """Linear interpolation of a per-channel 1-D table of n + 1 values at 0 <= t <= n."""
+    def _lookup_1d(self, data, channel, n, t, active):
+        """Linear interpolation of a per-channel 1-D table of n + 1 values at 0 <= t <= n;
+        lanes that do not need it (``active`` false: a factor of zero) skip the reads."""
         t = dr.clip(t, 0.0, float(n))
         i = dr.minimum(mi.UInt32(dr.floor(t)), n - 1)
         f = t - mi.Float(i)
         base = channel * (n + 1) + i
-        return dr.lerp(gather(data, base), gather(data, base + 1), f)
+        return dr.lerp(gather(data, base, active), gather(data, base + 1, active), f)
 
     def _cumulative(self, base, total, x, y, channel=None):
         """Residual integral over [0, x] x [0, y] of the periodically repeated tile."""
@@ -78,8 +79,9 @@ class ResidualSATs:
         qy = dr.floor(y / H)
         rx = dr.clip(x - qx * W, 0.0, W)
         ry = dr.clip(y - qy * H, 0.0, H)
-        return (qx * qy * total + qx * self._lookup_1d(self.last_col, channel, self.H, ry)
-                + qy * self._lookup_1d(self.last_row, channel, self.W, rx) + self._lookup(base, rx, ry))
+        # Footprints inside one tile have qx = qy = 0 at every corner: no edge reads.
+        return (qx * qy * total + qx * self._lookup_1d(self.last_col, channel, self.H, ry, qx != 0.0)
+                + qy * self._lookup_1d(self.last_row, channel, self.W, rx, qy != 0.0) + self._lookup(base, rx, ry))
 
     def rect_integral(self, channel, x0, y0, x1, y1):
         """Integral of the original values of ``channel`` (int or per-lane UInt32) over the

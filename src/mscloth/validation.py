@@ -1,0 +1,56 @@
+"""Reference computations for checking multi-scale shading: the footprint BSDF's
+expectation over its control-variate residual texel, and brute force (the Monte Carlo
+average of the fibre-level BSDF over the same footprint). Used by tests and `make bench`."""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+
+def _unit(v):
+    v = np.asarray(v, dtype=float)
+    return (v / np.linalg.norm(v)).tolist()
+
+
+def _non_delta_context():
+    ctx = mi.BSDFContext()
+    ctx.type_mask = +mi.BSDFFlags.All & ~+mi.BSDFFlags.Delta
+    return ctx
+
+
+def footprint_interaction(n: int, uv, half_texels: float, tile_texels: int, wi):
+    """``n`` lanes at ``uv`` with a square footprint of half-width ``half_texels`` texels
+    (uv_scale 1, a tile of ``tile_texels`` texels)."""
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.wi = mi.Vector3f(_unit(wi))
+    si.uv = mi.Point2f(uv)
+    d = 2.0 * half_texels / tile_texels  # |du/dx| + |du/dy| = 2 * half-width
+    si.duv_dx = mi.Vector2f(d, 0.0)
+    si.duv_dy = mi.Vector2f(0.0, d)
+    return si
+
+
+def footprint_expectation(bsdf, uv, half_texels, tile_texels, wi, wo, n=20000, seed=1):
+    """(mean, standard error, footprint used?) of the red channel of the footprint eval
+    over uniformly placed control-variate residual texels."""
+    si = footprint_interaction(n, uv, half_texels, tile_texels, wi)
+    fr = bsdf._frame(si, True)
+    fp = bsdf._footprint(si, fr)
+    rng = np.random.default_rng(seed)
+    xi = mi.Point2f(rng.random(n), rng.random(n))
+    value, _ = bsdf._eval_footprint(fr, fp, mi.Vector3f(_unit(wo)), bsdf._enabled(_non_delta_context()), xi)
+    v = np.array(value)[0]
+    return float(v.mean()), float(v.std() / np.sqrt(n)), bool(np.array(fp["use"])[0])
+
+
+def brute_force(params: dict, uv, half_texels, tile_texels, wi, wo, n=200000, seed=2):
+    """(mean, standard error) of the fibre-level BSDF over the footprint's area."""
+    point = mi.load_dict(dict(params, multiscale=False))
+    rng = np.random.default_rng(seed)
+    p = np.asarray(uv) + (rng.random((n, 2)) * 2.0 - 1.0) * half_texels / tile_texels
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.wi = mi.Vector3f(_unit(wi))
+    si.uv = mi.Point2f(p[:, 0], p[:, 1])
+    v = np.array(point.eval(_non_delta_context(), si, mi.Vector3f(_unit(wo))))[0]
+    return float(v.mean()), float(v.std() / np.sqrt(n))
