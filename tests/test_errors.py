@@ -24,6 +24,10 @@ mscloth.register()
     ({"sheen_color": {"type": "rgb", "value": [0.2, 1.4, 0.2]}}, "'sheen_color'"),
     ({"diffuse_albedo": 0.6, "diffuse_transmittance": 0.3, "specular_albedo": 0.5}, "must be <= 1"),
     ({"resolution": 3}, "'resolution'"),
+    ({"multiscale": 1.0}, "'multiscale'"),
+    ({"direction_bins": 2}, "'direction_bins'"),
+    ({"clusters": 0}, "'clusters'"),
+    ({"visibility_bins": 100}, "[2, 32]"),
 ])
 def test_out_of_range_parameters(params, needle):
     with pytest.raises(ParameterError, match=None) as info:
