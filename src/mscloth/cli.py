@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -56,6 +57,108 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def _resolution_arg(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, e.g. 640x360, got {text!r}")
+    if not (8 <= w <= 16384 and 8 <= h <= 16384):
+        raise argparse.ArgumentTypeError(f"width and height must be in [8, 16384], got {w}x{h}")
+    return w, h
+
+
+def _load_scene_file(path: Path, res):
+    """Load a Mitsuba XML scene, overriding its film's width/height when ``res`` is given."""
+    import xml.etree.ElementTree as ET
+
+    import mitsuba as mi
+
+    from .loading import unwrap_plugin_error
+
+    if not path.is_file():
+        raise ClothError(f"scene file {path} does not exist")
+    try:
+        if res is None:
+            return mi.load_file(str(path))
+        tree = ET.parse(path)
+        films = tree.getroot().findall(".//film")
+        if not films:
+            raise ClothError(f"{path}: no <film> to set --res on")
+        for film in films:
+            for key, value in (("width", res[0]), ("height", res[1])):
+                node = film.find(f"integer[@name='{key}']")
+                if node is None:
+                    node = ET.SubElement(film, "integer", name=key)
+                node.set("value", str(value))
+        mi.Thread.thread().file_resolver().prepend(str(path.parent.resolve()))
+        return mi.load_string(ET.tostring(tree.getroot(), encoding="unicode"))
+    except ET.ParseError as error:
+        raise ClothError(f"{path}: not valid XML: {error}") from None
+    except RuntimeError as error:
+        unwrapped = unwrap_plugin_error(error)
+        if unwrapped is not error:
+            raise unwrapped from None
+        lines = [line for line in str(error).splitlines() if line.strip()]
+        raise ClothError(f"cannot load {path}: {lines[0] if lines else error}") from None
+
+
+def cmd_render(args) -> int:
+    import mitsuba as mi
+
+    from .loading import load_dict
+    from .render import render_progressive, write_images
+    from .scenes.builtin import SCENES, builtin_scene
+
+    out = Path(args.out)
+    if out.suffix.lower() != ".exr":
+        raise ClothError(f"--out must name an .exr file (a .png is written beside it), got {out}")
+    if out.parent and not out.parent.exists():
+        out.parent.mkdir(parents=True, exist_ok=True)
+    variant = _setup(args.variant)
+    if args.scene in SCENES:
+        w, h = args.res or (512, 288)
+        scene = load_dict(builtin_scene(args.scene, w, h))
+    elif args.scene.lower().endswith(".xml"):
+        scene = _load_scene_file(Path(args.scene), args.res)
+    else:
+        raise ClothError(f"unknown scene {args.scene!r}: expected one of {', '.join(SCENES)} or a .xml file")
+    w, h = scene.sensors()[0].film().size()
+    print(f"mscloth render: {args.scene}, {w}x{h}, {args.spp} spp, variant {variant}", flush=True)
+    started = time.perf_counter()
+    image = render_progressive(scene, args.spp, label="render")
+    seconds = time.perf_counter() - started
+    exr, png = write_images(image, out)
+    print(f"wrote {exr} and {png} in {seconds:.1f} s ({w * h * args.spp / seconds / 1e6:.2f} M samples/s)")
+    return 0
+
+
+def cmd_scene(args) -> int:
+    from .scenes.builtin import SCENES
+    from .scenes.xml_export import scene_to_xml
+
+    out = Path(args.out)
+    if args.name not in SCENES:
+        raise ClothError(f"unknown scene {args.name!r}: expected one of {', '.join(SCENES)}")
+    if out.suffix.lower() != ".xml":
+        raise ClothError(f"--out must name an .xml file, got {out}")
+    if out.exists() and not args.force:
+        raise ClothError(f"{out} exists; pass --force to overwrite")
+    _setup(args.variant)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    w, h = args.res or (512, 288)
+    kwargs = {"mesh_dir": out.parent / "meshes"} if args.name == "drape" else {}
+    scene = SCENES[args.name](w, h, **kwargs)
+    # Meshes next to the XML, referenced relatively, so the folder can be moved.
+    for node in scene.values():
+        if isinstance(node, dict) and node.get("type") == "ply":
+            node["filename"] = os.path.relpath(node["filename"], out.parent)
+    from .atomic import atomic_write
+
+    atomic_write(out, lambda f: f.write(scene_to_xml(scene).encode()))
+    print(f"wrote {out} (render it with: mscloth render {out})")
+    return 0
+
+
 def cmd_maps(args) -> int:
     from .maps.builtin import default_resolution
     from .maps.generate import generate_maps
@@ -97,6 +200,22 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--res", type=_positive_int(16, 8192), default=512, help="image width and height (default 512)")
     demo.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
     demo.set_defaults(func=cmd_demo)
+
+    render = sub.add_parser("render", help="render a built-in scene (plane, sphere, drape) or a Mitsuba XML file")
+    render.add_argument("scene", help="plane, sphere, drape, or a .xml file")
+    render.add_argument("--spp", type=_positive_int(1, 65536), default=64, help="samples per pixel (default 64)")
+    render.add_argument("--res", type=_resolution_arg, default=None, help="WIDTHxHEIGHT (default: the scene's)")
+    render.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
+    render.add_argument("--out", default="out/render.exr", help="output EXR; a PNG is written beside it")
+    render.set_defaults(func=cmd_render)
+
+    scene = sub.add_parser("scene", help="write a built-in scene as Mitsuba XML to start from")
+    scene.add_argument("name", help="plane, sphere or drape")
+    scene.add_argument("--out", required=True, help="output .xml file")
+    scene.add_argument("--res", type=_resolution_arg, default=None, help="WIDTHxHEIGHT (default 512x288)")
+    scene.add_argument("--force", action="store_true", help="overwrite an existing file")
+    scene.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
+    scene.set_defaults(func=cmd_scene)
 
     maps = sub.add_parser("maps", help="generate the fibre-level maps of a pattern (weave, WIF draft, knit)")
     maps.add_argument("pattern", help="pattern name (plain, twill-2-1-S, satin-8-3, basket-2, jersey, rib-2-2) or a .wif file")
