@@ -9,7 +9,8 @@ setup:
 demo: setup
 	$(PY) -m mscloth demo --out out
 
-test: setup
+test:
+	@bash scripts/setup.sh test
 	$(PY) -m pytest -q
 
 bench: setup

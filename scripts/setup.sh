@@ -27,6 +27,11 @@ apt_install() {
 have_llvm19 || apt_install libllvm19
 have_llvm19 || { echo "setup: error: libLLVM.so.19 still not found after installing libllvm19" >&2; exit 1; }
 
+# `setup.sh test`: the test suite also checks the HTML report in headless Chromium.
+if [ "${1:-}" = "test" ] && ! command -v chromium >/dev/null 2>&1; then
+    apt_install chromium
+fi
+
 PYTHON=${PYTHON:-python3}
 if [ ! -x .venv/bin/python ]; then
     if ! "$PYTHON" -c 'import venv, ensurepip' >/dev/null 2>&1; then

@@ -189,6 +189,31 @@ def cmd_maps(args) -> int:
     return 0
 
 
+def cmd_compare(args) -> int:
+    from .compare import run_compare
+    from .scenes.builtin import SCENES
+
+    if args.scene not in SCENES:
+        raise ClothError(f"unknown scene {args.scene!r}: expected one of {', '.join(SCENES)}")
+    try:
+        budget = float(args.budget)
+    except ValueError:
+        raise ClothError(f"--budget must be a positive number of seconds, got {args.budget!r}") from None
+    if not (budget > 0 and budget != float("inf")):
+        raise ClothError(f"--budget must be a positive number of seconds, got {args.budget!r}")
+    try:
+        reference_spp = int(args.reference_spp)
+    except ValueError:
+        raise ClothError(f"--reference-spp must be an even number >= 2, got {args.reference_spp!r}") from None
+    w, h = args.res or (320, 180)
+    out = Path(args.out) if args.out else Path("out") / f"compare-{args.scene}"
+    if args.variant:
+        _setup(args.variant)
+    run_compare(args.scene, w, h, budget=budget, reference_spp=reference_spp, out_dir=out,
+                json_path=Path(args.json) if args.json else None)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mscloth", description="Multi-scale cloth appearance for Mitsuba 3.")
     parser.add_argument("--version", action="version", version=f"mscloth {__version__}")
@@ -230,6 +255,16 @@ def build_parser() -> argparse.ArgumentParser:
     maps.add_argument("--plies", type=int, default=None, help="plies per yarn (1-8)")
     maps.add_argument("--ply-twist", type=float, default=None, help="ply twist angle in degrees, (0, 90)")
     maps.set_defaults(func=cmd_maps)
+
+    compare = sub.add_parser("compare", help="multi-scale vs brute-force cloth: equal-error speed-up near, middle, far")
+    compare.add_argument("scene", help="plane, sphere or drape")
+    compare.add_argument("--budget", default="60", help="render seconds for both convergence curves together (default 60)")
+    compare.add_argument("--res", type=_resolution_arg, default=None, help="WIDTHxHEIGHT (default 320x180)")
+    compare.add_argument("--json", default=None, help="write the figures as JSON to this file")
+    compare.add_argument("--out", default=None, help="report directory (default out/compare-SCENE)")
+    compare.add_argument("--reference-spp", default="1024", help="spp of the brute-force reference (default 1024)")
+    compare.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
+    compare.set_defaults(func=cmd_compare)
     return parser
 
 

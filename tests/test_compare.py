@@ -1,0 +1,297 @@
+"""`mscloth compare`: metrics, regions, speed-up interpolation, reference cache, the report."""
+import json
+import math
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import mscloth
+from mscloth import compare
+from mscloth.compare import (REGIONS, ReferenceCacheWarning, closest_in_time, equal_error_time, reference_image,
+                             reference_path, region_masks, relmse)
+
+mscloth.register()
+
+RESULT_KEYS = ("speedup", "relmse_multiscale", "relmse_bruteforce", "spp_multiscale", "spp_bruteforce",
+               "seconds_multiscale", "seconds_bruteforce", "flip_multiscale", "flip_bruteforce")
+
+
+def run_cli(*args, timeout=600):
+    return subprocess.run([sys.executable, "-m", "mscloth", *args], capture_output=True, text=True, timeout=timeout)
+
+
+# ----------------------------------------------------------------------------- metrics, regions
+
+def test_relmse_known_values_and_mask():
+    ref = np.ones((4, 6, 3))
+    ref[:, 3:] = 0.0  # right half black
+    img = ref + 0.1
+    mask = np.zeros((4, 6), dtype=bool)
+    mask[:, :3] = True
+    # (0.1)^2 / (1 + 0.01) on the left, (0.1)^2 / (0 + 0.01) = 1 on the right
+    assert relmse(img, ref, mask) == pytest.approx(0.01 / 1.01, rel=1e-12)
+    assert relmse(img, ref, ~mask) == pytest.approx(1.0, rel=1e-12)
+    assert relmse(img, ref) == pytest.approx((0.01 / 1.01 + 1.0) / 2, rel=1e-12)
+    # one channel off by 0.3 in one pixel of the mask: mean over 3 pixels x 3 channels
+    img2 = ref.copy()
+    img2[0, 0, 1] += 0.3
+    first_column = np.zeros((4, 6), dtype=bool)
+    first_column[:, 0] = True
+    assert relmse(img2, ref, first_column) == pytest.approx(0.09 / 1.01 / 12, rel=1e-12)
+    with pytest.raises(ValueError):
+        relmse(img, ref, np.zeros((4, 6), dtype=bool))
+
+
+def test_region_masks_split_cloth_by_log_distance_and_exclude_the_rest():
+    depth = np.zeros((10, 16))
+    cloth = np.zeros((10, 16), dtype=bool)
+    depth[:5, :] = 1.0          # 80 near pixels
+    depth[5:8, :] = 4.0         # 48 middle pixels
+    depth[8:, :5] = 16.0        # 10 far pixels
+    depth[8:, 5:] = 2.0         # 22 pixels of floor at a "near" distance: not cloth
+    cloth[:8, :] = True
+    cloth[8:, :5] = True
+    masks, info = region_masks(depth, cloth)
+    assert info["method"] == "log-distance thirds"
+    assert [int(masks[g].sum()) for g in REGIONS] == [80, 48, 10]
+    assert np.all(depth[masks["near"]] == 1.0) and np.all(depth[masks["middle"]] == 4.0)
+    assert np.all(depth[masks["far"]] == 16.0)
+    assert not any(masks[g][8:, 5:].any() for g in REGIONS)
+    t1, t2 = info["thresholds"]
+    assert t1 == pytest.approx(16 ** (1 / 3)) and t2 == pytest.approx(16 ** (2 / 3))
+
+
+def test_region_masks_fall_back_to_terciles_when_a_band_is_empty():
+    depth = np.concatenate([np.linspace(1.0, 1.2, 500), np.linspace(8.0, 9.6, 500)]).reshape(20, 50)
+    masks, info = region_masks(depth, np.ones_like(depth, dtype=bool))
+    assert info["method"] == "distance terciles"
+    counts = [int(masks[g].sum()) for g in REGIONS]
+    assert sum(counts) == 1000 and max(counts) - min(counts) <= 1
+    assert depth[masks["near"]].max() < depth[masks["middle"]].min() <= depth[masks["middle"]].max() \
+        < depth[masks["far"]].min()
+
+
+# ----------------------------------------------------------------------------- speed-up
+
+def test_equal_error_time_is_exact_on_power_laws_and_flags_extrapolation():
+    t = np.array([0.1, 0.2, 0.4, 0.8, 1.6])
+    c = 0.05
+    for target_t in (0.13, 0.3, 1.0):
+        seconds, extrapolated = equal_error_time(t, c / t, c / target_t)
+        assert seconds == pytest.approx(target_t, rel=1e-12) and not extrapolated
+    # error ~ t^-2 is a line in log-log too
+    seconds, _ = equal_error_time(t, c / t ** 2, c / 0.5 ** 2)
+    assert seconds == pytest.approx(0.5, rel=1e-12)
+    # never reached: slope -1 from the last point
+    seconds, extrapolated = equal_error_time(t, c / t, c / 6.4)
+    assert extrapolated and seconds == pytest.approx(6.4, rel=1e-12)
+    seconds, extrapolated = equal_error_time(t, 2 * c / t, c / 6.4)  # last point (1.6, 2c/1.6)
+    assert extrapolated and seconds == pytest.approx(12.8, rel=1e-12)
+    # already below at the first point: slope -1 backwards
+    seconds, extrapolated = equal_error_time(t, c / t, c / 0.05)
+    assert extrapolated and seconds == pytest.approx(0.05, rel=1e-12)
+    # the first crossing counts, in time order whatever the input order
+    seconds, _ = equal_error_time([0.4, 0.1, 0.2], [0.1, 1.0, 0.5], 0.25)
+    frac = (math.log(0.25) - math.log(0.5)) / (math.log(0.1) - math.log(0.5))
+    assert seconds == pytest.approx(0.2 * 2 ** frac, rel=1e-12)
+    assert closest_in_time([0.01, 0.1, 1.0], 0.2) == 1 and closest_in_time([0.01, 0.1, 1.0], 0.5) == 2
+
+
+def _synthetic_points(times, errors_per_region, spps):
+    return [{"spp": s, "seconds": t, "compile_seconds": 0.0, "seed": i,
+             "relmse": {g: e[g] for g in REGIONS}, "flip": {g: 0.1 for g in REGIONS}}
+            for i, (s, t, e) in enumerate(zip(spps, times, errors_per_region))]
+
+
+def test_region_figures_give_the_exact_ratio_on_c_over_t_curves():
+    c = {"near": 0.01, "middle": 0.05, "far": 0.2}
+    bf_t = [0.01 * 2 ** k for k in range(8)]
+    bf = _synthetic_points(bf_t, [{g: c[g] / t for g in REGIONS} for t in bf_t], [2 ** k for k in range(8)])
+    # multi-scale at 16 spp takes 0.1 s and reaches errors brute force gets in 3x, 7x, 50x that time
+    wanted = {"near": 3.0, "middle": 7.0, "far": 50.0}
+    ms_t = [0.02, 0.04, 0.06, 0.08, 0.1, 0.2]
+    ms_err = [{g: 10.0 for g in REGIONS}] * 4 + [{g: c[g] / (0.1 * wanted[g]) for g in REGIONS},
+                                                  {g: 1e-9 for g in REGIONS}]
+    ms = _synthetic_points(ms_t, ms_err, [1, 2, 4, 8, 16, 32])
+    floor = {g: 0.0 for g in REGIONS}
+    figures, ms_index, bf_index = compare._region_figures(ms, bf, 16, floor)
+    assert ms_index == 4 and bf_t[bf_index] == 0.08  # closest to 0.1 s in log time
+    for g in REGIONS:
+        assert figures[g]["speedup"] == pytest.approx(wanted[g], rel=1e-9)
+        assert figures[g]["spp_multiscale"] == 16 and figures[g]["spp_bruteforce"] == 8
+        assert figures[g]["extrapolated"] is (0.1 * wanted[g] > bf_t[-1])
+    assert figures["far"]["extrapolated"] and not figures["near"]["extrapolated"]
+
+
+# ----------------------------------------------------------------------------- reference cache
+
+def test_reference_cache_miss_hit_and_corrupt_file_recomputed(tmp_path, monkeypatch):
+    monkeypatch.setenv("MSCLOTH_CACHE", str(tmp_path / "cache"))
+    path = reference_path("sphere", 16, 9, 2)
+    assert str(path).startswith(str(tmp_path / "cache" / "references"))
+    image, variance, cached = reference_image("sphere", 16, 9, 2, quiet=True)  # a real render
+    assert not cached and path.is_file()
+    assert image.shape == variance.shape == (9, 16, 3) and image.mean() > 0.01 and np.all(variance >= 0)
+
+    calls = []
+
+    def fake_render(name, w, h, spp, quiet):
+        calls.append((name, w, h, spp))
+        return np.full((h, w, 3), 0.25, np.float32), np.zeros((h, w, 3), np.float32)
+
+    monkeypatch.setattr(compare, "_render_reference", fake_render)
+    again, again_var, cached = reference_image("sphere", 16, 9, 2, quiet=True)
+    assert cached and not calls and np.array_equal(again, image) and np.array_equal(again_var, variance)
+
+    # other spp, other resolution: other keys, misses
+    assert reference_path("sphere", 16, 9, 4) != path and reference_path("sphere", 18, 9, 2) != path
+    assert not reference_image("sphere", 16, 9, 4, quiet=True)[2] and len(calls) == 1
+
+    path.write_bytes(b"not an npz file")
+    with pytest.warns(ReferenceCacheWarning, match="rendering it again"):
+        fresh, _, cached = reference_image("sphere", 16, 9, 2, quiet=True)
+    assert not cached and len(calls) == 2 and np.all(fresh == 0.25)
+    assert reference_image("sphere", 16, 9, 2, quiet=True)[2]  # the rewritten file is good
+
+    # a readable file of the wrong shape is recomputed too
+    np.savez(path.with_suffix(".tmp.npz"), key=np.array(compare.reference_key("sphere", 16, 9, 2)),
+             image=np.zeros((9, 15, 3), np.float32), variance=np.zeros((9, 15, 3), np.float32))
+    os.replace(path.with_suffix(".tmp.npz"), path)
+    with pytest.warns(ReferenceCacheWarning, match="shape"):
+        assert not reference_image("sphere", 16, 9, 2, quiet=True)[2]
+    assert len(calls) == 3
+    assert not [p for p in path.parent.iterdir() if p.name.startswith(".")]  # no temporary files left
+
+
+# ----------------------------------------------------------------------------- report on synthetic data
+
+def _synthetic_result(w=40, h=24):
+    rng = np.random.default_rng(1)
+    ref = rng.uniform(0.05, 0.8, (h, w, 3)).astype(np.float32)
+    images = {"reference": ref, "multiscale": ref * 1.05, "bruteforce": ref + rng.normal(0, 0.05, ref.shape)}
+    depth = np.tile(np.linspace(1.0, 20.0, w), (h, 1))
+    masks, info = region_masks(depth, np.ones((h, w), dtype=bool))
+    bf_t = [0.01 * 2 ** k for k in range(5)]
+    bf = _synthetic_points(bf_t, [{g: 0.01 / t for g in REGIONS} for t in bf_t], [1, 2, 4, 8, 16])
+    ms = _synthetic_points([0.05, 0.1], [{g: 0.2 for g in REGIONS}, {g: 0.05 for g in REGIONS}], [1, 2])
+    figures, _, _ = compare._region_figures(ms, bf, 16, {g: 0.001 for g in REGIONS})
+    result = {"scene": "synthetic", "resolution": [w, h], "reference_spp": 64, "budget_seconds": 1.0,
+              "variant": "none", "mscloth_version": mscloth.__version__, "machine": "test", **figures,
+              "regions": {"method": info["method"], "distance_thresholds": info["thresholds"],
+                          "pixels": {g: int(masks[g].sum()) for g in REGIONS}, "cloth_pixels": w * h},
+              "metrics": {"relmse": "r", "flip": "f", "seconds": "s", "speedup": "x"},
+              "compile_seconds": {"multiscale": 0.0, "bruteforce": 0.0}}
+    return result, images, masks, depth
+
+
+def _img_sources(html_text):
+    return re.findall(r'<img[^>]*\ssrc="([^"]+)"', html_text)
+
+
+def test_report_references_only_existing_files_and_is_never_half_written(tmp_path, monkeypatch):
+    from mscloth import report
+
+    result, images, masks, depth = _synthetic_result()
+    page = report.write_report(tmp_path / "r", result, images, masks, depth)
+    sources = _img_sources(page.read_text())
+    assert len(sources) >= 3 + 1 + 9 + 3 + 1  # side by side, regions, insets, heat maps + bar, convergence
+    for src in sources:
+        assert not os.path.isabs(src) and (page.parent / src).is_file(), src
+    inset = np.asarray(__import__("PIL.Image", fromlist=["Image"]).open(page.parent / "inset_far_reference.png"))
+    assert inset.shape[0] == inset.shape[1] and inset.shape[0] >= 64  # square, zoomed
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("plot failed")
+
+    monkeypatch.setattr(report, "_convergence_plot", broken)
+    with pytest.raises(RuntimeError):
+        report.write_report(tmp_path / "s", result, images, masks, depth)
+    assert not (tmp_path / "s" / "report.html").exists()
+    assert not [p for p in (tmp_path / "s").iterdir() if p.name.startswith(".")]
+
+
+# ----------------------------------------------------------------------------- end to end
+
+@pytest.fixture(scope="module")
+def compared(tmp_path_factory):
+    root = tmp_path_factory.mktemp("compare")
+    result = run_cli("compare", "sphere", "--res", "48x27", "--budget", "0.2", "--reference-spp", "16",
+                     "--out", str(root / "report"), "--json", str(root / "figures.json"))
+    return root, result
+
+
+def test_compare_sphere_writes_json_for_three_regions_and_the_report(compared):
+    root, result = compared
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "speed-up" in result.stdout and "reference" in result.stderr  # progress shown
+    data = json.loads((root / "figures.json").read_text())
+    assert data["scene"] == "sphere" and data["resolution"] == [48, 27]
+    for g in REGIONS:
+        region = data[g]
+        for key in RESULT_KEYS:
+            assert isinstance(region[key], (int, float)) and math.isfinite(region[key]), (g, key)
+            assert region[key] > 0, (g, key)
+        assert isinstance(region["extrapolated"], bool)
+        assert len(region["curve_multiscale"]) >= 2 and len(region["curve_bruteforce"]) >= 2
+        assert [p["spp"] for p in region["curve_bruteforce"]][:2] == [1, 2]
+        assert all(math.isfinite(p["relmse"]) and p["seconds"] > 0 for p in region["curve_multiscale"])
+        assert data["regions"]["pixels"][g] > 0
+    report = root / "report" / "report.html"
+    assert report.is_file()
+    for src in _img_sources(report.read_text()):
+        assert (report.parent / src).is_file(), src
+    for name in ("reference.png", "multiscale.png", "bruteforce.png", "convergence.png", "heat_multiscale.png",
+                 "inset_near_multiscale.png", "inset_far_bruteforce.png"):
+        assert (report.parent / name).stat().st_size > 0, name
+
+
+def test_report_page_loads_in_headless_chromium(compared, tmp_path):
+    root, result = compared
+    assert result.returncode == 0, result.stderr[-3000:]
+    chromium = "/usr/bin/chromium" if os.path.exists("/usr/bin/chromium") else shutil.which("chromium")
+    if chromium is None:
+        pytest.fail("chromium is not installed (/usr/bin/chromium): install it with `apt-get install -y chromium` "
+                    "to check the compare report in a browser")
+    report = (root / "report" / "report.html").resolve()
+    browser = subprocess.run(
+        [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+         "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={tmp_path / 'profile'}",
+         "--enable-logging=stderr", "--v=0", "--dump-dom", report.as_uri()],
+        capture_output=True, text=True, timeout=120)
+    assert browser.returncode == 0, browser.stderr[-3000:]
+    dom = browser.stdout
+    assert "<table" in dom and "speed-up" in dom, dom[:500]
+    sources = _img_sources(dom)
+    assert len(sources) >= 17, sources
+    for src in sources:
+        assert (report.parent / src).is_file(), src
+    for marker in ("Uncaught", "ERROR:CONSOLE"):
+        assert marker not in browser.stderr, browser.stderr[-3000:]
+
+
+# ----------------------------------------------------------------------------- bad input
+
+@pytest.mark.parametrize("args, message", [
+    (["nosuchscene"], "unknown scene 'nosuchscene'"),
+    (["sphere", "--budget", "0"], "--budget must be a positive number"),
+    (["sphere", "--budget", "-5"], "--budget must be a positive number"),
+    (["sphere", "--budget", "soon"], "--budget must be a positive number"),
+    (["sphere", "--reference-spp", "3"], "--reference-spp must be an even number"),
+    (["sphere", "--out", "{file}/sub"], "cannot write to"),
+    (["sphere", "--json", "{dir}"], "is a directory"),
+])
+def test_bad_input_gives_one_line_and_nonzero_exit(args, message, tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    args = [a.format(file=blocker, dir=tmp_path) for a in args]
+    result = run_cli("compare", *args, "--res", "16x9", timeout=120)
+    assert result.returncode != 0
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("mscloth: error:") and message in lines[0], result.stderr
