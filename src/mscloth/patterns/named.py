@@ -6,9 +6,6 @@ arguments take the constructor's defaults. ``weft-faced`` satins are ``sateen-N-
 """
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 import numpy as np
 
 from ..errors import PatternError
@@ -73,7 +70,3 @@ def named_pattern(spec: str):
     if isinstance(result, np.ndarray):  # a weave's drawdown
         return Draft(result, name=str(spec))
     return result
-
-
-def looks_like_directory(spec) -> bool:
-    return Path(os.fspath(spec)).is_dir()
