@@ -54,7 +54,6 @@ near a texel at the yarn's edge (inside tight arcs), which shifts the tangent th
 from __future__ import annotations
 
 import math
-from numbers import Integral
 from typing import Any
 
 import numpy as np
@@ -62,9 +61,8 @@ import numpy as np
 from ..errors import ParameterError, PatternError
 from ..patterns.knit import KnitPattern, validate_stitches
 from .cloth_maps import ClothMaps
-from .generator_support import height_normal, real_in, srgb_to_linear
+from .generator_support import height_normal, real_in, srgb_to_linear, tile_resolution
 
-MAX_RESOLUTION = 16384
 MIN_TEXELS_PER_STITCH = 4
 _TABLE_X = 128          # initial-guess table: nodes per stitch period along u
 _TABLE_SAMPLES = 192    # curve samples per stitch period when building the table
@@ -76,28 +74,6 @@ _AMP_MAX = 2.3016
 
 
 # ---------------------------------------------------------------- argument checks
-def _resolution(resolution: Any, aspect: float, n_courses: int, n_wales: int
-                ) -> tuple[int, int]:
-    """An int is the width in texels (height follows the tile aspect); (H, W) is exact."""
-    if isinstance(resolution, Integral) and not isinstance(resolution, bool):
-        w = int(resolution)
-        pair = (max(1, int(round(w * aspect))), w)
-    elif (isinstance(resolution, (tuple, list)) and len(resolution) == 2
-          and all(isinstance(n, Integral) and not isinstance(n, bool) for n in resolution)):
-        pair = (int(resolution[0]), int(resolution[1]))
-    else:
-        raise ParameterError(f"resolution must be an int (texels along u) or an (H, W) pair of "
-                             f"ints, got {resolution!r}")
-    for side, n, count, kind in (("H", pair[0], n_courses, "courses"),
-                                 ("W", pair[1], n_wales, "wales")):
-        lo = MIN_TEXELS_PER_STITCH * count
-        if not lo <= n <= MAX_RESOLUTION:
-            raise ParameterError(f"resolution {side} must be in [{lo}, {MAX_RESOLUTION}] "
-                                 f"({MIN_TEXELS_PER_STITCH} texels for each of the {count} "
-                                 f"{kind}), got {n}")
-    return pair
-
-
 def _as_pattern(pattern: Any) -> KnitPattern:
     if isinstance(pattern, KnitPattern):
         return pattern
@@ -231,7 +207,7 @@ def knit_maps(pattern: Any, resolution: int | tuple[int, int] = 256, *,
     twist = real_in("fibre_twist_deg", fibre_twist_deg, -90.0, 90.0, False, False)
     mm = real_in("wale_spacing_mm", wale_spacing_mm, 0.0, math.inf, True, True)
     aspect = nc * a / nw
-    H, W = _resolution(resolution, aspect, nc, nw)
+    H, W = tile_resolution(resolution, aspect, (nc, nw), MIN_TEXELS_PER_STITCH, ("courses", "wales"))
     psi = math.radians(twist)
 
     r = 0.5 * w

@@ -39,30 +39,9 @@ from ..errors import ParameterError
 from ..patterns.draft import Draft
 from ..patterns.weaves import validate_drawdown
 from .cloth_maps import ClothMaps
-from .generator_support import height_normal, real_in, srgb_to_linear
+from .generator_support import height_normal, real_in, srgb_to_linear, tile_resolution
 
-MAX_RESOLUTION = 16384
 MIN_TEXELS_PER_THREAD = 2
-
-
-def _resolution(resolution: Any, n_weft: int, n_warp: int) -> tuple[int, int]:
-    """Parse an int (square) or an (H, W) pair; each side needs a few texels per thread."""
-    if isinstance(resolution, Integral) and not isinstance(resolution, bool):
-        pair = (int(resolution), int(resolution))
-    elif (isinstance(resolution, (tuple, list)) and len(resolution) == 2
-          and all(isinstance(n, Integral) and not isinstance(n, bool) for n in resolution)):
-        pair = (int(resolution[0]), int(resolution[1]))
-    else:
-        raise ParameterError(f"resolution must be an int or an (H, W) pair of ints, "
-                             f"got {resolution!r}")
-    for side, n, threads, kind in (("H", pair[0], n_weft, "weft picks"),
-                                   ("W", pair[1], n_warp, "warp ends")):
-        lo = MIN_TEXELS_PER_THREAD * threads
-        if not lo <= n <= MAX_RESOLUTION:
-            raise ParameterError(f"resolution {side} must be in [{lo}, {MAX_RESOLUTION}] "
-                                 f"({MIN_TEXELS_PER_THREAD} texels for each of the {threads} "
-                                 f"{kind}), got {n}")
-    return pair
 
 
 def _colors(name: str, colors: Any, count: int) -> np.ndarray:
@@ -106,11 +85,8 @@ def _as_draft(pattern: Any) -> Draft:
 def _tile_resolution(resolution: Any, draft: Draft) -> tuple[int, int]:
     """An int is the width in texels (the height follows the tile's aspect); (H, W) is exact."""
     width_mm, height_mm = draft.size_mm
-    if isinstance(resolution, Integral) and not isinstance(resolution, bool):
-        w = int(resolution)
-        h = max(1, int(round(w * height_mm / width_mm)))
-        resolution = (h, w)
-    return _resolution(resolution, draft.n_weft, draft.n_warp)
+    return tile_resolution(resolution, height_mm / width_mm, (draft.n_weft, draft.n_warp),
+                           MIN_TEXELS_PER_THREAD, ("weft picks", "warp ends"))
 
 
 def _threads(centres_of: np.ndarray, spacing: np.ndarray, pos: np.ndarray):
