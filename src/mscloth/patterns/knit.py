@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import PatternError
+from .weaves import binary_grid
 
 KNIT = 1
 PURL = 0
@@ -26,24 +27,9 @@ PURL = 0
 
 def validate_stitches(arr: Any) -> np.ndarray:
     """Return ``arr`` as a new 2-D int8 stitch grid of 0/1, or raise PatternError."""
-    try:
-        raw = np.asarray(arr)
-    except (TypeError, ValueError) as exc:  # ragged nested lists
-        raise PatternError(f"KnitPattern.stitches: expected a 2-D array of 0/1 (or bools), got "
-                           f"unreadable input ({exc})") from None
-    if raw.ndim != 2:
-        raise PatternError(f"KnitPattern.stitches: expected a 2-D array (courses, wales), got "
-                           f"{raw.ndim} dimension(s) with shape {raw.shape}")
-    if raw.size == 0:
-        raise PatternError(f"KnitPattern.stitches: expected a non-empty array, got shape "
-                           f"{raw.shape}")
-    if raw.dtype != bool and raw.dtype.kind not in "iuf":
-        raise PatternError(f"KnitPattern.stitches: expected bools or 0/1 values (1 = knit, "
-                           f"0 = purl), got dtype {raw.dtype}")
-    if raw.dtype != bool and not np.all((raw == 0) | (raw == 1)):
-        raise PatternError("KnitPattern.stitches: expected only the values 0 (purl) and "
-                           "1 (knit), or bools")
-    return (raw == 1).astype(np.int8) if raw.dtype != bool else raw.astype(np.int8)
+    grid = binary_grid(arr, "KnitPattern.stitches", "courses, wales",
+                       "the values 0 (purl) and 1 (knit), or bools")
+    return grid.astype(np.int8)
 
 
 def _colors(name: str, value: Any, count: int, what: str) -> np.ndarray | None:

@@ -60,30 +60,35 @@ def _count(name: str, value: Any, minimum: int) -> int:
     return int(value)
 
 
-def validate_drawdown(arr: Any) -> np.ndarray:
-    """Return ``arr`` as a new 2-D bool drawdown, or raise PatternError saying what is wrong.
+def binary_grid(arr: Any, field: str, axes: str, values: str) -> np.ndarray:
+    """``arr`` as a new non-empty 2-D bool grid, or a PatternError naming ``field``.
 
-    Accepted: any non-empty 2-D array-like of bools or of the numbers 0 and 1. Other values
-    (2, 0.5, strings) are refused rather than truth-tested, since they usually mean a draft
-    was parsed wrongly.
+    Accepted: bools or the numbers 0 and 1. Other values (2, 0.5, strings) are refused
+    rather than truth-tested, since they usually mean a draft was parsed wrongly. ``axes``
+    names the two dimensions and ``values`` what 0 and 1 mean, for the messages.
     """
     try:
         raw = np.asarray(arr)
     except (TypeError, ValueError) as exc:  # ragged nested lists
-        raise PatternError(f"drawdown: expected a 2-D array of bools, got unreadable input "
+        raise PatternError(f"{field}: expected a 2-D array of {values}, got unreadable input "
                            f"({exc})") from None
     if raw.ndim != 2:
-        raise PatternError(f"drawdown: expected a 2-D array (weft picks, warp ends), got "
+        raise PatternError(f"{field}: expected a 2-D array ({axes}), got "
                            f"{raw.ndim} dimension(s) with shape {raw.shape}")
     if raw.size == 0:
-        raise PatternError(f"drawdown: expected a non-empty array, got shape {raw.shape}")
+        raise PatternError(f"{field}: expected a non-empty array, got shape {raw.shape}")
     if raw.dtype == bool:
         return raw.copy()
     if raw.dtype.kind not in "iuf":
-        raise PatternError(f"drawdown: expected bools or 0/1 values, got dtype {raw.dtype}")
+        raise PatternError(f"{field}: expected {values}, got dtype {raw.dtype}")
     if not np.all((raw == 0) | (raw == 1)):
-        raise PatternError("drawdown: expected only bools or the values 0 and 1")
+        raise PatternError(f"{field}: expected only {values}")
     return raw == 1
 
 
-__all__ = ["plain", "twill", "satin", "basket", "validate_drawdown"]
+def validate_drawdown(arr: Any) -> np.ndarray:
+    """Return ``arr`` as a new 2-D bool drawdown, or raise PatternError saying what is wrong."""
+    return binary_grid(arr, "drawdown", "weft picks, warp ends", "bools or the values 0 and 1")
+
+
+__all__ = ["plain", "twill", "satin", "basket", "binary_grid", "validate_drawdown"]
