@@ -270,6 +270,27 @@ def read_wif(path) -> Draft:
     return parse_wif(data, name=p.name)
 
 
+def _numbering(wif, uses, count, kind: str, key: str, default_section: str) -> tuple[int, int]:
+    """(base, count) of one numbering (shafts or treadles) from its ``uses``, a list of
+    (section, entry, number). Numbering starts at 0 if any use is 0, else at 1; a missing
+    [WEAVING] count is inferred from the largest number used (with a warning); a number
+    beyond the count is an error at its line."""
+    zero = next(((sec, e) for sec, e, n in uses if n == 0), None)
+    base = 0 if zero is not None else 1
+    note = (f"; {kind}s are numbered from 0 here because [{zero[0]}] line "
+            f"{zero[1].line} uses {kind} 0" if zero is not None else "")
+    if count is None:
+        sec, e, top = max(uses, key=lambda u: u[2], default=(default_section, None, base))
+        count = top - base + 1
+        if e is not None:
+            _capped(wif, sec, e, count, MAX_SHAFTS, f"{kind}s")
+        wif.warnings.append(f"no [WEAVING] {key}: {count} inferred from the {kind}s used")
+    for sec, e, n in uses:
+        if n - base >= count:
+            raise wif.error(sec, e.line, f"{kind} {n} does not exist ({key}={count}{note})")
+    return base, count
+
+
 def parse_wif(text: str | bytes, name: str = "<string>") -> Draft:
     """Parse WIF content (``str``, or ``bytes`` in any common encoding) into a Draft.
 
@@ -459,37 +480,13 @@ def _build(wif: _Wif, name: str) -> Draft:
         shaft_uses += [("LIFTPLAN", picks.items[i], s) for i, ss in pick_values.items() for s in ss]
     else:
         shaft_uses += [("TIEUP", tieup_num[t], s) for t, ss in tieup_items.items() for s in ss]
-    zero_shaft = next(((sec, e) for sec, e, s in shaft_uses if s == 0), None)
-    shaft_base = 0 if zero_shaft is not None else 1
-    base_note = (f"; shafts are numbered from 0 here because [{zero_shaft[0]}] line "
-                 f"{zero_shaft[1].line} uses shaft 0" if zero_shaft is not None else "")
-    if n_shafts is None:
-        sec, e, top = max(shaft_uses, key=lambda u: u[2], default=("THREADING", None, shaft_base))
-        n_shafts = top - shaft_base + 1
-        if e is not None:
-            _capped(wif, sec, e, n_shafts, MAX_SHAFTS, "shafts")
-        wif.warnings.append(f"no [WEAVING] Shafts: {n_shafts} inferred from the shafts used")
-    for sec, e, s in shaft_uses:
-        if s - shaft_base >= n_shafts:
-            raise wif.error(sec, e.line, f"shaft {s} does not exist (Shafts={n_shafts}{base_note})")
+    shaft_base, n_shafts = _numbering(wif, shaft_uses, n_shafts, "shaft", "Shafts", "THREADING")
 
     # --- treadle numbering (TIEUP keys, TREADLING values) ------------------------------------
     if lift_source == "treadling":
         tread_uses = [("TIEUP", tieup_num[t], t) for t in tieup_items]
         tread_uses += [("TREADLING", picks.items[i], t) for i, ts in pick_values.items() for t in ts]
-        zero_t = next(((sec, e) for sec, e, t in tread_uses if t == 0), None)
-        tread_base = 0 if zero_t is not None else 1
-        t_note = (f"; treadles are numbered from 0 here because [{zero_t[0]}] line "
-                  f"{zero_t[1].line} uses treadle 0" if zero_t is not None else "")
-        if not n_treadles:
-            sec, e, top = max(tread_uses, key=lambda u: u[2], default=("TIEUP", None, tread_base))
-            n_treadles = top - tread_base + 1
-            if e is not None:
-                _capped(wif, sec, e, n_treadles, MAX_SHAFTS, "treadles")
-            wif.warnings.append(f"no [WEAVING] Treadles: {n_treadles} inferred from the treadles used")
-        for sec, e, t in tread_uses:
-            if t - tread_base >= n_treadles:
-                raise wif.error(sec, e.line, f"treadle {t} does not exist (Treadles={n_treadles}{t_note})")
+        tread_base, n_treadles = _numbering(wif, tread_uses, n_treadles or None, "treadle", "Treadles", "TIEUP")
 
     # --- drawdown: boolean matrix products --------------------------------------------------
     thread_m = np.zeros((n_warp, n_shafts), dtype=bool)          # end -> shafts
