@@ -112,8 +112,6 @@ def cmd_render(args) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".exr":
         raise ClothError(f"--out must name an .exr file (a .png is written beside it), got {out}")
-    if out.parent and not out.parent.exists():
-        out.parent.mkdir(parents=True, exist_ok=True)
     variant = _setup(args.variant)
     if args.scene in SCENES:
         w, h = args.res or (512, 288)

@@ -223,14 +223,18 @@ def make_cloth_class():
             if self.use_parallax:
                 # Look up (and centre the footprint on) the texel the view ray reaches
                 # first in the height field; the table covers the front side only.
-                fx = x / self.tile_w
-                fy = y / self.tile_h
-                ix = mi.UInt32(dr.clip(dr.floor((fx - dr.floor(fx)) * self.tile_w), 0, self.tile_w - 1))
-                iy = mi.UInt32(dr.clip(dr.floor((fy - dr.floor(fy)) * self.tile_h), 0, self.tile_h - 1))
+                ix, iy = self._texel_index(mi.Point2f(x / self.tile_w, y / self.tile_h))
                 dx, dy = self.footprint_data.parallax_offset(ix, iy, wi)
                 x = dr.select(flip, x, x + dx)
                 y = dr.select(flip, y, y + dy)
             return dict(flip=flip, sign=sign, wi=wi, k=k, t_sheen_i=t_sheen_i, x=x, y=y, active=active)
+
+        def _texel_index(self, pos):
+            """The texel (ix, iy) that nearest lookups at tile coordinates ``pos`` read
+            (the same wrap as the textures)."""
+            ix = mi.UInt32(dr.clip(dr.floor((pos.x - dr.floor(pos.x)) * self.tile_w), 0, self.tile_w - 1))
+            iy = mi.UInt32(dr.clip(dr.floor((pos.y - dr.floor(pos.y)) * self.tile_h), 0, self.tile_h - 1))
+            return ix, iy
 
         def _texel(self, fr, x, y):
             """The point (fibre-level) state at texel coordinates (x, y) (periodic)."""
@@ -242,9 +246,7 @@ def make_cloth_class():
             k = dict(fr["k"])
             for name in ("specular_albedo", "specular_transmittance", "diffuse_albedo", "diffuse_transmittance"):
                 k[name] = k[name] * yarn_albedo
-            # The texel the nearest lookups read (the same wrap as the textures).
-            ix = mi.UInt32(dr.clip(dr.floor((pos.x - dr.floor(pos.x)) * self.tile_w), 0, self.tile_w - 1))
-            iy = mi.UInt32(dr.clip(dr.floor((pos.y - dr.floor(pos.y)) * self.tile_h), 0, self.tile_h - 1))
+            ix, iy = self._texel_index(pos)
             return dict(fr, tangent=tangent, yarn=fibre[3], k=k, ix=ix, iy=iy)
 
         def _footprint(self, si, fr):
