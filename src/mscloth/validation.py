@@ -35,13 +35,14 @@ def footprint_expectation(bsdf, uv, half_texels, tile_texels, wi, wo, n=20000, s
     """(mean, standard error, footprint used?) of the red channel of the footprint eval
     over uniformly placed control-variate residual texels."""
     si = footprint_interaction(n, uv, half_texels, tile_texels, wi)
+    enabled = bsdf._enabled(_non_delta_context())
     fr = bsdf._frame(si, True)
-    fp = bsdf._footprint(si, fr)
     rng = np.random.default_rng(seed)
     xi = mi.Point2f(rng.random(n), rng.random(n))
-    value, _ = bsdf._eval_footprint(fr, fp, mi.Vector3f(_unit(wo)), bsdf._enabled(_non_delta_context()), xi)
+    st = bsdf._footprint_state(si, fr, enabled, xi)
+    value = bsdf._eval_footprint(fr, st, mi.Vector3f(_unit(wo)), enabled)
     v = np.array(value)[0]
-    return float(v.mean()), float(v.std() / np.sqrt(n)), bool(np.array(fp["use"])[0])
+    return float(v.mean()), float(v.std() / np.sqrt(n)), bool(np.array(st["fp"]["use"])[0])
 
 
 def brute_force(params: dict, uv, half_texels, tile_texels, wi, wo, n=200000, seed=2):

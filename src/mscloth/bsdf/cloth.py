@@ -131,6 +131,19 @@ transmission, 5 gap (delta transmission).
 """
 
 
+def _not(mask):
+    """Logical not, also for the Python bools of scalar variants (where ~ gives an int)."""
+    return mask ^ True
+
+
+def _pick(values, index):
+    """values[index] per lane, for a short Python list of per-lane values."""
+    out = values[0]
+    for c in range(1, len(values)):
+        out = dr.select(index == c, values[c], out)
+    return out
+
+
 def _max_channel(c):
     return dr.maximum(dr.maximum(c[0], c[1]), c[2])
 
@@ -292,26 +305,26 @@ def make_cloth_class():
             inv = dr.select(total > 0.0, dr.rcp(total), 0.0)
             return [wk * inv for wk in w]
 
+        def _visibility_o(self, pt, wo):
+            """V(p, o) of the texel for the outgoing direction (mirrored frame): the viewer's
+            side for reflection, the other side for transmission."""
+            up = wo.z > 0.0
+            wo_up = mi.Vector3f(wo.x, wo.y, dr.abs(wo.z))
+            return self.footprint_data.visibility_at(pt["ix"], pt["iy"], wo_up, pt["flip"] == up)
+
         def _visibility(self, pt, wo):
             """V(p, i, o) of the texel: shadowing x masking by the cloth's height field.
             The viewer's side uses the front table, mirrored when the viewer is below."""
             if self.footprint_data is None:
                 return mi.Float(1.0)
-            fd = self.footprint_data
-            up = wo.z > 0.0
-            v_i = fd.visibility_at(pt["ix"], pt["iy"], pt["wi"], pt["flip"])
-            wo_up = mi.Vector3f(wo.x, wo.y, dr.abs(wo.z))
-            # The viewer's side for reflection, the other side for transmission.
-            v_o = fd.visibility_at(pt["ix"], pt["iy"], wo_up, pt["flip"] == up)
-            return v_i * v_o
+            v_i = self.footprint_data.visibility_at(pt["ix"], pt["iy"], pt["wi"], pt["flip"])
+            return v_i * self._visibility_o(pt, wo)
 
-        def _cluster_visibility(self, cluster, pt, wo):
-            """The visibility cluster's mean of V(i) times its mean of V(o)."""
-            fd = self.footprint_data
+        def _cluster_visibilities_o(self, fr, wo):
+            """Every cluster's mean V for the outgoing direction (mirrored frame)."""
             up = wo.z > 0.0
             wo_up = mi.Vector3f(wo.x, wo.y, dr.abs(wo.z))
-            return (fd.cluster_visibility(cluster, pt["wi"], pt["flip"])
-                    * fd.cluster_visibility(cluster, wo_up, pt["flip"] == up))
+            return self.footprint_data.cluster_visibilities(wo_up, fr["flip"] == up)
 
         def _pdf_point(self, pt, wo, enabled, probs):
             """Fibre-level pdf alone (the footprint mixture needs four of them)."""
@@ -322,7 +335,7 @@ def make_cloth_class():
             if enabled[SHEEN]:
                 pdf += probs[SHEEN] * dr.select(up, sheen.pdf_sheen(wi, wo, self.sheen_roughness), 0.0)
             if enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]:
-                side_ok = (up & enabled[SPECULAR_REFLECTION]) | (~up & enabled[SPECULAR_TRANSMISSION])
+                side_ok = (up & enabled[SPECULAR_REFLECTION]) | (_not(up) & enabled[SPECULAR_TRANSMISSION])
                 pdf += probs[SPECULAR_REFLECTION] * dr.select(side_ok, spongecake.pdf_specular(wi, wo, t, self.roughness), 0.0)
             cosine = dr.abs(wo.z) * dr.inv_pi
             if enabled[DIFFUSE_REFLECTION]:
@@ -355,7 +368,7 @@ def make_cloth_class():
                 if enabled[SPECULAR_TRANSMISSION]:
                     transmission += k["specular_transmittance"] * spec
                 if want_pdf:
-                    side_ok = (up & enabled[SPECULAR_REFLECTION]) | (~up & enabled[SPECULAR_TRANSMISSION])
+                    side_ok = (up & enabled[SPECULAR_REFLECTION]) | (_not(up) & enabled[SPECULAR_TRANSMISSION])
                     pdf += probs[SPECULAR_REFLECTION] * dr.select(
                         side_ok, spongecake.pdf_specular(wi, wo, t, self.roughness), 0.0)
             cosine = dr.abs(cos_o) * dr.inv_pi
@@ -375,36 +388,75 @@ def make_cloth_class():
             pdf = dr.select(valid, pdf, 0.0)
             return value, pdf
 
-        def _eval_footprint(self, fr, fp, wo, enabled, xi):
-            """Footprint-averaged non-delta f*|cos o| (Eq. 9-14 with CCV), mirrored frame.
+        def _footprint_state(self, si, fr, enabled, xi=None):
+            """Everything of the footprint that does not depend on the outgoing direction,
+            computed once per shading point and shared by eval, pdf and sample: the SAT
+            means over the footprint, the control-variate residual texel, the viewer-side
+            visibilities and the sampling mixture.
 
-            ``xi`` (2D in [0,1)) places the texel of the control-variate residual.
-            """
+            ``xi`` (2D in [0,1)) places the residual texel; by default a hash of si.uv, so
+            eval is a deterministic function of (si, wo)."""
             fd = self.footprint_data
             sats = fd.scalar_sats
+            fp = self._footprint(si, fr)
+            q = sats.query(fp["x0"], fp["y0"], fp["x1"], fp["y1"])
+            inv_area = dr.rcp(fp["area"])
+
+            def mean(channel):
+                return sats.integral(q, channel) * inv_area
+
+            st = dict(fp=fp, q=q, inv_area=inv_area)
+            st["yarn_mean"] = yarn_mean = mean(fd.GAP)
+            st["inv_yarn"] = inv_yarn = dr.select(yarn_mean > 1e-6, dr.rcp(yarn_mean), 0.0)
+            if self.uniform_yarn_albedo is not None:
+                st["yarn_albedo"] = mi.Color3f(*self.uniform_yarn_albedo)
+            else:
+                st["yarn_albedo"] = mi.Color3f(*[mean(fd.ALBEDO + c) * inv_yarn for c in range(3)])
+            if enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]:
+                # The footprint's mean SGGX matrix over its yarn texels:
+                # S = I - (1 - alpha^2) <t t^T>, from the mean of t t^T.
+                m = [mean(fd.MOMENTS + j) * inv_yarn for j in range(6)]
+                sgn = fr["sign"]
+                st["moments"] = (m[0], m[1], sgn * m[2], m[3], sgn * m[4], m[5])
+
+            # The texel of the control-variate residual, uniform in the footprint.
+            if xi is None:
+                xi = self._hash2(si)
+            p = self._texel(fr, fp["x0"] + xi.x * (fp["x1"] - fp["x0"]), fp["y0"] + xi.y * (fp["y1"] - fp["y0"]))
+            st["p"] = p
+            if self.use_visibility:
+                cluster = fd.cluster_of(p["ix"], p["iy"])
+                st["cluster_p"] = cluster
+                st["v_i_p"] = fd.visibility_at(p["ix"], p["iy"], fr["wi"], fr["flip"])
+                st["cvis_i"] = cvis_i = fd.cluster_visibilities(fr["wi"], fr["flip"])
+                st["cvis_i_p"] = _pick(cvis_i, cluster)
+                if enabled[DIFFUSE_REFLECTION] or enabled[DIFFUSE_TRANSMISSION]:
+                    st["fractions"] = [mean(fd.CLUSTERS + c) for c in range(fd.clusters)]
+
+            # The sampling mixture: four texels, defensive cosine and gap components.
+            st["texels"] = texels = self._mixture_texels(fr, fp)
+            st["tex_probs"] = [self._lobe_probabilities(t_, enabled) for t_ in texels]
+            eps_c, eps_d, _ = self._mixture_weights(enabled, yarn_mean)
+            st["eps_c"] = dr.select(fp["use"], eps_c, 0.0)
+            st["eps_d"] = dr.select(fp["use"], eps_d, 0.0)
+            st["m_tex"] = 1.0 - st["eps_c"] - st["eps_d"]
+            return st
+
+        def _eval_footprint(self, fr, st, wo, enabled):
+            """Footprint-averaged non-delta f*|cos o| (Eq. 9-14 with CCV), mirrored frame."""
+            fd = self.footprint_data
             wi = fr["wi"]
             k = fr["k"]
+            p = st["p"]
             cos_o = wo.z
             up = cos_o > 0.0
             valid = (wi.z > spongecake.COS_EPSILON) & (dr.abs(cos_o) > spongecake.COS_EPSILON)
-            inv_area = dr.rcp(fp["area"])
+            yarn_albedo = st["yarn_albedo"]
 
-            def mean(sat, channel):
-                return sat.rect_integral(channel, fp["x0"], fp["y0"], fp["x1"], fp["y1"]) * inv_area
-
-            yarn_mean = mean(sats, fd.GAP)
-            inv_yarn = dr.select(yarn_mean > 1e-6, dr.rcp(yarn_mean), 0.0)
-            if self.uniform_yarn_albedo is not None:
-                yarn_albedo = mi.Color3f(*self.uniform_yarn_albedo)
-            else:
-                yarn_albedo = mi.Color3f(*[mean(sats, fd.ALBEDO + c) * inv_yarn for c in range(3)])
-
-            # The texel of the control-variate residual, uniform in the footprint.
-            p = self._texel(fr, fp["x0"] + xi.x * (fp["x1"] - fp["x0"]), fp["y0"] + xi.y * (fp["y1"] - fp["y0"]))
             if self.use_visibility:
-                cluster = fd.cluster_of(p["ix"], p["iy"])
-                v_p = self._visibility(p, wo)
-                vbar_p = self._cluster_visibility(cluster, p, wo)
+                v_p = st["v_i_p"] * self._visibility_o(p, wo)
+                cvis_o = self._cluster_visibilities_o(fr, wo)
+                vbar_p = st["cvis_i_p"] * _pick(cvis_o, st["cluster_p"])
 
             value = mi.Color3f(0.0)
             if enabled[SHEEN]:
@@ -417,7 +469,8 @@ def make_cloth_class():
                 bins, weights = hemisphere_bins(h, fd.dr)
                 d_yarn = mi.Float(0.0)  # mean over P of D(h, t) I
                 for b, wt in zip(bins, weights):
-                    d_yarn += wt * mean(fd.d_sat, b)
+                    d_yarn += wt * fd.d_sat.integral(st["q"], b)
+                d_yarn *= st["inv_area"]
                 if self.use_visibility:
                     if fd.per_cluster:
                         base = mi.Float(0.0)
@@ -425,8 +478,9 @@ def make_cloth_class():
                         for c in range(fd.clusters):
                             d_c = mi.Float(0.0)
                             for b, wt in zip(bins, weights):
-                                d_c += wt * mean(fd.d_sat_cluster, c * n_bins + b)
-                            base += self._cluster_visibility(mi.UInt32(c), p, wo) * d_c
+                                d_c += wt * fd.d_sat_cluster.integral(st["q"], c * n_bins + b)
+                            base += st["cvis_i"][c] * cvis_o[c] * d_c
+                        base *= st["inv_area"]
                     else:
                         base = d_yarn * vbar_p
                     d_p = sggx.ndf(h, p["tangent"], self.roughness) * p["yarn"]
@@ -436,17 +490,13 @@ def make_cloth_class():
                     d_visible = base + d_p * (v_p - vbar_p)
                 else:
                     d_visible = d_yarn
-                # Projected areas of the footprint's mean SGGX matrix over its yarn texels:
-                # S = I - (1 - alpha^2) <t t^T>.
-                m = [mean(sats, fd.MOMENTS + j) * inv_yarn for j in range(6)]
-                sgn = fr["sign"]
-                m_xx, m_xy, m_xz, m_yy, m_yz, m_zz = m[0], m[1], sgn * m[2], m[3], sgn * m[4], m[5]
+                m_xx, m_xy, m_xz, m_yy, m_yz, m_zz = st["moments"]
+                alpha2 = self.roughness * self.roughness
 
                 def sigma(w):
                     q = (w.x * w.x * m_xx + w.y * w.y * m_yy + w.z * w.z * m_zz
                          + 2.0 * (w.x * w.y * m_xy + w.x * w.z * m_xz + w.y * w.z * m_yz))
-                    return dr.safe_sqrt(dr.maximum(1.0 - (1.0 - self.roughness * self.roughness) * q,
-                                                   self.roughness * self.roughness))
+                    return dr.safe_sqrt(dr.maximum(1.0 - (1.0 - alpha2) * q, alpha2))
 
                 spec, _ = spongecake.eval_specular_from(d_visible, sigma(wi), sigma(wo), wi, wo, self.thickness)
                 if enabled[SPECULAR_REFLECTION]:
@@ -456,12 +506,11 @@ def make_cloth_class():
             if enabled[DIFFUSE_REFLECTION] or enabled[DIFFUSE_TRANSMISSION]:
                 if self.use_visibility:
                     # Eq. 14 through the cluster histogram, plus the same residual texel.
-                    yarn_visible = mi.Float(0.0)
+                    yarn_visible = p["yarn"] * (v_p - vbar_p)
                     for c in range(fd.clusters):
-                        yarn_visible += self._cluster_visibility(mi.UInt32(c), p, wo) * mean(sats, fd.CLUSTERS + c)
-                    yarn_visible += p["yarn"] * (v_p - vbar_p)
+                        yarn_visible += st["cvis_i"][c] * cvis_o[c] * st["fractions"][c]
                 else:
-                    yarn_visible = yarn_mean
+                    yarn_visible = st["yarn_mean"]
                 cosine = dr.abs(cos_o) * dr.inv_pi * yarn_visible
                 if enabled[DIFFUSE_REFLECTION]:
                     reflection += k["diffuse_albedo"] * yarn_albedo * cosine
@@ -469,7 +518,7 @@ def make_cloth_class():
                     transmission += k["diffuse_transmittance"] * yarn_albedo * cosine
             under_fuzz = fr["t_sheen_i"] * sheen.sheen_transmittance(wo, self.sheen_roughness, self.sheen_thickness)
             value += under_fuzz * dr.select(up, reflection, transmission)
-            return dr.select(valid, value, 0.0), yarn_mean
+            return dr.select(valid, value, 0.0)
 
         # The footprint BSDF is sampled as a mixture: one of four texels at the centres of
         # the footprint's quadrants (their fibre-level lobes), plus defensive cosine and gap
@@ -492,14 +541,14 @@ def make_cloth_class():
                 pdf += self._pdf_point(pt, wo, enabled, pr)
             return m_tex * 0.25 * pdf + eps_c * dr.abs(wo.z) * (0.5 * dr.inv_pi)
 
-        def _hash2(self, si, wo):
-            """Two deterministic pseudo-random numbers per (uv, wo): places the CCV residual
-            texel in eval(), where Mitsuba passes no random numbers."""
+        def _hash2(self, si):
+            """Two deterministic pseudo-random numbers per uv: places the CCV residual texel
+            in eval(), where Mitsuba passes no random numbers."""
             def bits(x):  # 24 well-mixed bits of a float's fractional part
                 return mi.UInt32((x - dr.floor(x)) * 16777216.0)
 
-            a = bits(si.uv.x * 997.0 + wo.z * 31.0)
-            b = bits(si.uv.y * 991.0 + wo.x * 37.0)
+            a = bits(si.uv.x * 997.0 + si.uv.y * 31.0)
+            b = bits(si.uv.y * 991.0 + si.uv.x * 37.0)
             v0, v1 = mi.sample_tea_32(a, b)
             scale = 1.0 / 4294967296.0
             return mi.Point2f(mi.Float(v0 >> 8) * (scale * 256.0), mi.Float(v1 >> 8) * (scale * 256.0))
@@ -516,10 +565,10 @@ def make_cloth_class():
             c_dt = c_dr + probs[DIFFUSE_TRANSMISSION]
             c_all = c_dt + probs[GAP]
             pick_sheen = sample1 < c_sheen
-            pick_spec = ~pick_sheen & (sample1 < c_spec)
-            pick_dr = ~pick_sheen & ~pick_spec & (sample1 < c_dr)
-            pick_dt = ~pick_sheen & ~pick_spec & ~pick_dr & (sample1 < c_dt)
-            pick_gap = ~pick_sheen & ~pick_spec & ~pick_dr & ~pick_dt & (sample1 < c_all) & (probs[GAP] > 0.0)
+            pick_spec = _not(pick_sheen) & (sample1 < c_spec)
+            pick_dr = _not(pick_sheen) & _not(pick_spec) & (sample1 < c_dr)
+            pick_dt = _not(pick_sheen) & _not(pick_spec) & _not(pick_dr) & (sample1 < c_dt)
+            pick_gap = _not(pick_sheen) & _not(pick_spec) & _not(pick_dr) & _not(pick_dt) & (sample1 < c_all) & (probs[GAP] > 0.0)
 
             # One visible-normal draw serves sheen and specular (different t, alpha).
             up = mi.Vector3f(0.0, 0.0, 1.0)
@@ -532,8 +581,8 @@ def make_cloth_class():
 
             lands_up = wo.z > 0.0
             ok = active & (wi.z > spongecake.COS_EPSILON) & (pick_sheen | pick_spec | pick_dr | pick_dt)
-            ok &= ~pick_sheen | lands_up
-            ok &= ~pick_spec | dr.select(lands_up, enabled[SPECULAR_REFLECTION], enabled[SPECULAR_TRANSMISSION])
+            ok &= _not(pick_sheen) | lands_up
+            ok &= _not(pick_spec) | dr.select(lands_up, enabled[SPECULAR_REFLECTION], enabled[SPECULAR_TRANSMISSION])
             component = dr.select(pick_sheen, SHEEN,
                         dr.select(pick_spec, dr.select(lands_up, SPECULAR_REFLECTION, SPECULAR_TRANSMISSION),
                         dr.select(pick_dr, DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION)))
@@ -541,72 +590,77 @@ def make_cloth_class():
             return wo, ok, mi.UInt32(component), gap_ok
 
         # ------------------------------------------------------------------
-        # mi.BSDF interface
+        # Shared by the mi.BSDF methods
         # ------------------------------------------------------------------
-        def sample(self, ctx, si, sample1, sample2, active=True):
+        def _prepare(self, ctx, si, active):
+            """The per-shading-point state of every method: enabled lobes, the viewer's
+            frame, the texel under si.uv with its lobe probabilities, and (multi-scale)
+            the footprint state."""
             enabled = self._enabled(ctx)
             fr = self._frame(si, active)
             pt = self._texel(fr, fr["x"], fr["y"])
             probs = self._lobe_probabilities(pt, enabled)
+            st = self._footprint_state(si, fr, enabled) if self.multiscale else None
+            return enabled, fr, pt, probs, st
 
-            if not self.multiscale:
+        def _eval_pdf_at(self, enabled, fr, pt, probs, st, wo):
+            """(f*|cos o|, pdf) of the non-delta lobes at ``wo`` (mirrored frame): the
+            footprint form where the footprint is used, the texel's otherwise."""
+            value, pdf = self._eval_pdf_point(pt, wo, enabled, probs)
+            if st is not None:
+                use = st["fp"]["use"]
+                value = dr.select(use, self._eval_footprint(fr, st, wo, enabled), value)
+                pdf = dr.select(use, self._mixture_pdf(st["texels"], st["tex_probs"], wo, enabled,
+                                                       st["eps_c"], st["m_tex"]), pdf)
+            return value, pdf
+
+        def _sample_at(self, enabled, fr, pt, probs, st, sample1, sample2, active):
+            """A direction from the texel's lobes or, where the footprint is used, from
+            the footprint mixture: (wo mirrored, ok, component, gap_ok, gap_pdf, gap_value)."""
+            if st is None:
                 wo, ok, component, gap_ok = self._sample_point(pt, probs, enabled, sample1, sample2, active)
-                value, pdf = self._eval_pdf_point(pt, wo, enabled, probs)
-                gap_pdf = probs[GAP]
                 gap_value = pt["t_sheen_i"] * pt["t_sheen_i"] * (1.0 - pt["yarn"])
-            else:
-                fp = self._footprint(si, fr)
-                texels = self._mixture_texels(fr, fp)
-                tex_probs = [self._lobe_probabilities(t_, enabled) for t_ in texels]
-                fd = self.footprint_data
-                yarn_mean = fd.scalar_sats.rect_integral(fd.GAP, fp["x0"], fp["y0"], fp["x1"], fp["y1"]) / fp["area"]
-                eps_c, eps_d, m_tex = self._mixture_weights(enabled, yarn_mean)
-                eps_d = dr.select(fp["use"], eps_d, 0.0)
-                eps_c = dr.select(fp["use"], eps_c, 0.0)
-                m_tex = 1.0 - eps_c - eps_d
-                # Split sample1: defensive gap | defensive cosine | one of four texels.
-                pick_def_gap = sample1 < eps_d
-                pick_def_cos = ~pick_def_gap & (sample1 < eps_d + eps_c)
-                u = (sample1 - eps_d - eps_c) / dr.select(m_tex > 0.0, m_tex, 1.0)
-                quad = mi.UInt32(dr.clip(dr.floor(u * 4.0), 0, 3))
-                u = dr.clip(u * 4.0 - mi.Float(quad), 0.0, 0.99999994)
-                chosen = dict(texels[0])
-                chosen_probs = list(tex_probs[0])
-                for q in range(1, 4):
-                    sel = fp["use"] & (quad == q)
-                    for key in ("tangent", "yarn", "ix", "iy"):
-                        chosen[key] = dr.select(sel, texels[q][key], chosen[key])
-                    chosen["k"] = {n: dr.select(sel, texels[q]["k"][n], chosen["k"][n]) for n in chosen["k"]}
-                    chosen_probs = [dr.select(sel, a, b) for a, b in zip(tex_probs[q], chosen_probs)]
-                # Sub-texel footprints are the fibre-level BSDF at the texel itself.
+                return wo, ok, component, gap_ok, probs[GAP], gap_value
+            use = st["fp"]["use"]
+            texels, tex_probs = st["texels"], st["tex_probs"]
+            eps_c, eps_d, m_tex = st["eps_c"], st["eps_d"], st["m_tex"]
+            # Split sample1: defensive gap | defensive cosine | one of four texels.
+            pick_def_gap = sample1 < eps_d
+            pick_def_cos = _not(pick_def_gap) & (sample1 < eps_d + eps_c)
+            u = (sample1 - eps_d - eps_c) / dr.select(m_tex > 0.0, m_tex, 1.0)
+            quad = mi.UInt32(dr.clip(dr.floor(u * 4.0), 0, 3))
+            u = dr.clip(u * 4.0 - mi.Float(quad), 0.0, 0.99999994)
+            # Sub-texel footprints are the fibre-level BSDF at the texel itself.
+            chosen = dict(pt)
+            chosen_probs = list(probs)
+            for q in range(4):
+                sel = use & (quad == q)
                 for key in ("tangent", "yarn", "ix", "iy"):
-                    chosen[key] = dr.select(fp["use"], chosen[key], pt[key])
-                chosen["k"] = {n: dr.select(fp["use"], chosen["k"][n], pt["k"][n]) for n in chosen["k"]}
-                chosen_probs = [dr.select(fp["use"], a, b) for a, b in zip(chosen_probs, probs)]
-                u = dr.select(fp["use"], u, sample1)
+                    chosen[key] = dr.select(sel, texels[q][key], chosen[key])
+                chosen["k"] = {n: dr.select(sel, texels[q]["k"][n], chosen["k"][n]) for n in chosen["k"]}
+                chosen_probs = [dr.select(sel, a, b) for a, b in zip(tex_probs[q], chosen_probs)]
+            u = dr.select(use, u, sample1)
 
-                wo, ok, component, gap_ok = self._sample_point(chosen, chosen_probs, enabled, u, sample2, active)
-                wo_cos = mi.warp.square_to_cosine_hemisphere(sample2)
-                # The defensive cosine side: the lower or upper half of its sample1 slice.
-                lower = (sample1 - eps_d) < 0.5 * eps_c
-                wo_cos.z = dr.select(lower, -wo_cos.z, wo_cos.z)
-                wo = dr.select(pick_def_cos, wo_cos, wo)
-                ok = dr.select(pick_def_cos, active & (fr["wi"].z > spongecake.COS_EPSILON), ok & ~pick_def_gap)
-                component = dr.select(pick_def_cos, dr.select(lower, DIFFUSE_TRANSMISSION, DIFFUSE_REFLECTION),
-                                      component)
-                gap_ok = (gap_ok & ~pick_def_cos) | (pick_def_gap & active & (fr["wi"].z > spongecake.COS_EPSILON))
+            wo, ok, component, gap_ok = self._sample_point(chosen, chosen_probs, enabled, u, sample2, active)
+            wo_cos = mi.warp.square_to_cosine_hemisphere(sample2)
+            # The defensive cosine side: the lower or upper half of its sample1 slice.
+            lower = (sample1 - eps_d) < 0.5 * eps_c
+            wo_cos.z = dr.select(lower, -wo_cos.z, wo_cos.z)
+            wo = dr.select(pick_def_cos, wo_cos, wo)
+            viewer_ok = active & (fr["wi"].z > spongecake.COS_EPSILON)
+            ok = dr.select(pick_def_cos, viewer_ok, ok & _not(pick_def_gap))
+            component = dr.select(pick_def_cos, dr.select(lower, DIFFUSE_TRANSMISSION, DIFFUSE_REFLECTION),
+                                  component)
+            gap_ok = (gap_ok & _not(pick_def_cos)) | (pick_def_gap & viewer_ok)
+            mean_gap = 0.25 * (tex_probs[0][GAP] + tex_probs[1][GAP] + tex_probs[2][GAP] + tex_probs[3][GAP])
+            gap_pdf = dr.select(use, eps_d + m_tex * mean_gap, probs[GAP])
+            gap_value = pt["t_sheen_i"] * pt["t_sheen_i"] * dr.select(use, 1.0 - st["yarn_mean"], 1.0 - pt["yarn"])
+            return wo, ok, component, gap_ok, gap_pdf, gap_value
 
-                xi = self._hash2(si, wo)
-                fp_value, _ = self._eval_footprint(fr, fp, wo, enabled, xi)
-                fp_pdf = self._mixture_pdf(texels, tex_probs, wo, enabled, eps_c, m_tex)
-                pt_value, pt_pdf = self._eval_pdf_point(pt, wo, enabled, probs)
-                value = dr.select(fp["use"], fp_value, pt_value)
-                pdf = dr.select(fp["use"], fp_pdf, pt_pdf)
-                mean_gap = 0.25 * (tex_probs[0][GAP] + tex_probs[1][GAP] + tex_probs[2][GAP] + tex_probs[3][GAP])
-                gap_pdf = dr.select(fp["use"], eps_d + m_tex * mean_gap, probs[GAP])
-                fp_gap = 1.0 - yarn_mean
-                gap_value = pt["t_sheen_i"] * pt["t_sheen_i"] * dr.select(fp["use"], fp_gap, 1.0 - pt["yarn"])
-
+        def _sample_record(self, si, fr, enabled, pt, probs, st, sample1, sample2, active):
+            wo, ok, component, gap_ok, gap_pdf, gap_value = self._sample_at(
+                enabled, fr, pt, probs, st, sample1, sample2, active)
+            value, pdf = self._eval_pdf_at(enabled, fr, pt, probs, st, wo)
             ok &= pdf > 0.0
             weight = dr.select(ok, value / dr.select(ok, pdf, 1.0), 0.0)
             gap_ok &= gap_pdf > 0.0
@@ -625,33 +679,31 @@ def make_cloth_class():
             weight = dr.select(gap_ok, mi.Color3f(gap_weight), weight)
             return bs, weight
 
-        def _eval_pdf_any(self, ctx, si, wo, active, want_pdf):
-            enabled = self._enabled(ctx)
-            fr = self._frame(si, active)
-            wo_m = self._mirror(fr, wo)
-            pt = self._texel(fr, fr["x"], fr["y"])
-            probs = self._lobe_probabilities(pt, enabled) if want_pdf else None
-            value, pdf = self._eval_pdf_point(pt, wo_m, enabled, probs, want_pdf)
-            if self.multiscale:
-                fp = self._footprint(si, fr)
-                fp_value, yarn_mean = self._eval_footprint(fr, fp, wo_m, enabled, self._hash2(si, wo_m))
-                value = dr.select(fp["use"], fp_value, value)
-                if want_pdf:
-                    texels = self._mixture_texels(fr, fp)
-                    tex_probs = [self._lobe_probabilities(t_, enabled) for t_ in texels]
-                    eps_c, eps_d, _ = self._mixture_weights(enabled, yarn_mean)
-                    m_tex = 1.0 - eps_c - eps_d
-                    pdf = dr.select(fp["use"], self._mixture_pdf(texels, tex_probs, wo_m, enabled, eps_c, m_tex), pdf)
-            return dr.select(active, value, 0.0), dr.select(active, pdf, 0.0) if want_pdf else None
-
-        def eval(self, ctx, si, wo, active=True):
-            return self._eval_pdf_any(ctx, si, wo, active, False)[0]
-
-        def pdf(self, ctx, si, wo, active=True):
-            return self._eval_pdf_any(ctx, si, wo, active, True)[1]
+        # ------------------------------------------------------------------
+        # mi.BSDF interface
+        # ------------------------------------------------------------------
+        def sample(self, ctx, si, sample1, sample2, active=True):
+            enabled, fr, pt, probs, st = self._prepare(ctx, si, active)
+            return self._sample_record(si, fr, enabled, pt, probs, st, sample1, sample2, active)
 
         def eval_pdf(self, ctx, si, wo, active=True):
-            return self._eval_pdf_any(ctx, si, wo, active, True)
+            enabled, fr, pt, probs, st = self._prepare(ctx, si, active)
+            value, pdf = self._eval_pdf_at(enabled, fr, pt, probs, st, self._mirror(fr, wo))
+            return dr.select(active, value, 0.0), dr.select(active, pdf, 0.0)
+
+        def eval(self, ctx, si, wo, active=True):
+            return self.eval_pdf(ctx, si, wo, active)[0]
+
+        def pdf(self, ctx, si, wo, active=True):
+            return self.eval_pdf(ctx, si, wo, active)[1]
+
+        def eval_pdf_sample(self, ctx, si, wo, sample1, sample2, active=True):
+            # One footprint state for the emitter direction and the sampled direction:
+            # the SAT means, visibilities and mixture are direction-independent.
+            enabled, fr, pt, probs, st = self._prepare(ctx, si, active)
+            value, pdf = self._eval_pdf_at(enabled, fr, pt, probs, st, self._mirror(fr, wo))
+            bs, weight = self._sample_record(si, fr, enabled, pt, probs, st, sample1, sample2, active)
+            return dr.select(active, value, 0.0), dr.select(active, pdf, 0.0), bs, weight
 
         def traverse(self, callback):
             for name in FLOAT_PARAMETERS:

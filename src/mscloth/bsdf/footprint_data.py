@@ -23,8 +23,9 @@ class FootprintData:
         vis = np.stack([tables.visibility, tables.visibility_back]).astype(np.float32) / 255.0
         self.visibility = flat_array(vis)
         self.side_stride = self.H * self.W * self.n_dirs
+        # (side, direction, cluster): the clusters of one direction bin are contiguous.
         cvis = np.stack([tables.cluster_vis, tables.cluster_vis_back]).astype(np.float32)
-        self.cluster_vis = flat_array(cvis)
+        self.cluster_vis = flat_array(np.moveaxis(cvis, 1, 2))
         # Cluster ids as floats (exact for small integers): one gatherable array type.
         self.cluster_id = flat_array(np.maximum(tables.cluster_id, 0))
         self.parallax = flat_array(tables.parallax)  # (H, W, dv*dv, 2) texel offsets
@@ -66,14 +67,17 @@ class FootprintData:
             v += wt * gather(self.visibility, base + b)
         return v
 
-    def cluster_visibility(self, cluster, w, back):
-        """Mean V of a visibility cluster for direction ``w`` (same conventions)."""
+    def cluster_visibilities(self, w, back):
+        """Mean V of every visibility cluster for direction ``w`` (same conventions as
+        :meth:`visibility_at`): a list of ``clusters`` values."""
         bins, weights = hemisphere_bins(w, self.dv)
-        base = (dr.select(back, mi.UInt32(self.clusters), mi.UInt32(0)) + cluster) * self.n_dirs
-        v = mi.Float(0.0)
+        side = dr.select(back, mi.UInt32(self.n_dirs), mi.UInt32(0))
+        values = [mi.Float(0.0) for _ in range(self.clusters)]
         for b, wt in zip(bins, weights):
-            v += wt * gather(self.cluster_vis, base + b)
-        return v
+            base = (side + b) * self.clusters
+            for c in range(self.clusters):
+                values[c] += wt * gather(self.cluster_vis, base + c)
+        return values
 
     def parallax_offset(self, ix, iy, w):
         """Texel offset (dx, dy) from texel (ix, iy) to where a view ray from direction ``w``

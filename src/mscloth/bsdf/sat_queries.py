@@ -27,8 +27,32 @@ def gather(source, index, active=True):
     return source[int(index)] if active else 0.0
 
 
+class RectQuery:
+    """The corner geometry of one texel rectangle, computed once and shared by every
+    channel read from any :class:`ResidualSATs` of the same tile size."""
+
+    def __init__(self, sats: "ResidualSATs", x0, y0, x1, y1):
+        self.area = (x1 - x0) * (y1 - y0)
+        # The rectangle's integral: S(x1,y1) - S(x0,y1) - S(x1,y0) + S(x0,y0).
+        self.corners = [(1.0, sats._corner(x1, y1)), (-1.0, sats._corner(x0, y1)),
+                        (-1.0, sats._corner(x1, y0)), (1.0, sats._corner(x0, y0))]
+
+
+class _Corner:
+    """Where the cumulative integral S(x, y) of the periodically repeated tile reads:
+    qx whole tiles along x, qy along y, and the remainder (rx, ry) inside the tile."""
+
+    __slots__ = ("qx", "qy", "cell", "ix", "iy", "fx", "fy", "use_col", "use_row")
+
+
 class ResidualSATs:
-    """``C`` residual SATs of one tile, flat in Dr.Jit memory, queried per lane."""
+    """``C`` residual SATs of one tile in Dr.Jit memory, queried per lane.
+
+    Layout: channel-minor, ``data[(y * (W + 1) + x) * C + c]``. The channels of one texel
+    corner share cache lines, so the direction bins (or the gap/moment/cluster channels)
+    that one footprint reads at a corner cost a few cache misses instead of one per
+    channel: footprint shading is bound by these misses, not by arithmetic.
+    """
 
     def __init__(self, sat: np.ndarray, mean: np.ndarray):
         sat = np.asarray(sat, dtype=np.float32)
@@ -36,63 +60,66 @@ class ResidualSATs:
             sat = sat[None]
         self.channels, rows, cols = sat.shape
         self.H, self.W = rows - 1, cols - 1
-        self.data = flat_array(sat)
+        self.data = flat_array(np.moveaxis(sat, 0, -1))
         self.mean = flat_array(np.asarray(mean, dtype=np.float64))
         self.total = flat_array(sat[:, self.H, self.W])  # ~0 by construction
         # The last column (x = W) and last row (y = H) alone: the periodic decomposition
         # reads them at every corner, and 1-D interpolation needs 2 reads instead of 4.
-        self.last_col = flat_array(sat[:, :, self.W])
-        self.last_row = flat_array(sat[:, self.H, :])
+        self.last_col = flat_array(np.moveaxis(sat[:, :, self.W], 0, -1))
+        self.last_row = flat_array(np.moveaxis(sat[:, self.H, :], 0, -1))
 
     def nbytes(self) -> int:
         return 4 * (len(self.data) + len(self.last_col) + len(self.last_row) + 2 * self.channels)
 
-    def _lookup(self, base, x, y):
-        """Bilinear value of the channel at flat offset ``base`` at grid coords 0<=x<=W, 0<=y<=H."""
-        x = dr.clip(x, 0.0, float(self.W))
-        y = dr.clip(y, 0.0, float(self.H))
-        ix = dr.minimum(mi.UInt32(dr.floor(x)), self.W - 1)
-        iy = dr.minimum(mi.UInt32(dr.floor(y)), self.H - 1)
-        fx = x - mi.Float(ix)
-        fy = y - mi.Float(iy)
-        stride = self.W + 1
-        i00 = base + iy * stride + ix
-        v00 = gather(self.data, i00)
-        v01 = gather(self.data, i00 + 1)
-        v10 = gather(self.data, i00 + stride)
-        v11 = gather(self.data, i00 + stride + 1)
-        return dr.lerp(dr.lerp(v00, v01, fx), dr.lerp(v10, v11, fx), fy)
-
-    def _lookup_1d(self, data, channel, n, t, active):
-        """Linear interpolation of a per-channel 1-D table of n + 1 values at 0 <= t <= n;
-        lanes that do not need it (``active`` false: a factor of zero) skip the reads."""
-        t = dr.clip(t, 0.0, float(n))
-        i = dr.minimum(mi.UInt32(dr.floor(t)), n - 1)
-        f = t - mi.Float(i)
-        base = channel * (n + 1) + i
-        return dr.lerp(gather(data, base, active), gather(data, base + 1, active), f)
-
-    def _cumulative(self, base, total, x, y, channel=None):
-        """Residual integral over [0, x] x [0, y] of the periodically repeated tile."""
+    def _corner(self, x, y):
         W, H = float(self.W), float(self.H)
-        qx = dr.floor(x / W)
-        qy = dr.floor(y / H)
-        rx = dr.clip(x - qx * W, 0.0, W)
-        ry = dr.clip(y - qy * H, 0.0, H)
+        c = _Corner()
+        c.qx = dr.floor(x / W)
+        c.qy = dr.floor(y / H)
+        rx = dr.clip(x - c.qx * W, 0.0, W)
+        ry = dr.clip(y - c.qy * H, 0.0, H)
+        ix = dr.minimum(mi.UInt32(dr.floor(rx)), self.W - 1)
+        iy = dr.minimum(mi.UInt32(dr.floor(ry)), self.H - 1)
+        c.fx = rx - mi.Float(ix)
+        c.fy = ry - mi.Float(iy)
+        c.ix, c.iy = ix, iy
+        c.cell = iy * (self.W + 1) + ix
         # Footprints inside one tile have qx = qy = 0 at every corner: no edge reads.
-        return (qx * qy * total + qx * self._lookup_1d(self.last_col, channel, self.H, ry, qx != 0.0)
-                + qy * self._lookup_1d(self.last_row, channel, self.W, rx, qy != 0.0) + self._lookup(base, rx, ry))
+        c.use_col = c.qx != 0.0
+        c.use_row = c.qy != 0.0
+        return c
+
+    def query(self, x0, y0, x1, y1) -> RectQuery:
+        """The corner geometry of the texel rectangle [x0, x1] x [y0, y1] (any size, any
+        position: periodic); valid for every table of the same tile size."""
+        return RectQuery(self, x0, y0, x1, y1)
+
+    def integral(self, q: RectQuery, channel):
+        """Integral of the original values of ``channel`` (int or per-lane UInt32) over the
+        rectangle of query ``q`` (made by any table of this tile size)."""
+        C = self.channels
+        row_stride = (self.W + 1) * C
+        channel = mi.UInt32(channel)
+        total = gather(self.total, channel)
+        residual = mi.Float(0.0)
+        for sign, c in q.corners:
+            i00 = c.cell * C + channel
+            v00 = gather(self.data, i00)
+            v01 = gather(self.data, i00 + C)
+            v10 = gather(self.data, i00 + row_stride)
+            v11 = gather(self.data, i00 + row_stride + C)
+            inner = dr.lerp(dr.lerp(v00, v01, c.fx), dr.lerp(v10, v11, c.fx), c.fy)
+            col = c.iy * C + channel
+            col = dr.lerp(gather(self.last_col, col, c.use_col), gather(self.last_col, col + C, c.use_col), c.fy)
+            row = c.ix * C + channel
+            row = dr.lerp(gather(self.last_row, row, c.use_row), gather(self.last_row, row + C, c.use_row), c.fx)
+            residual += sign * (c.qx * c.qy * total + c.qx * col + c.qy * row + inner)
+        return residual + gather(self.mean, channel) * q.area
 
     def rect_integral(self, channel, x0, y0, x1, y1):
-        """Integral of the original values of ``channel`` (int or per-lane UInt32) over the
-        texel rectangle [x0, x1] x [y0, y1] (any size, any position: periodic)."""
-        channel = mi.UInt32(channel)
-        base = channel * ((self.H + 1) * (self.W + 1))
-        total = gather(self.total, channel)
-        mean = gather(self.mean, channel)
-        residual = (self._cumulative(base, total, x1, y1, channel) - self._cumulative(base, total, x0, y1, channel)
-                    - self._cumulative(base, total, x1, y0, channel) + self._cumulative(base, total, x0, y0, channel))
-        return residual + mean * (x1 - x0) * (y1 - y0)
+        """Integral of the original values of ``channel`` over the texel rectangle
+        [x0, x1] x [y0, y1] (any size, any position: periodic)."""
+        return self.integral(self.query(x0, y0, x1, y1), channel)
 
 
 def hemisphere_bins(w, n: int):

@@ -78,6 +78,10 @@ def mis_weight(pdf_a, pdf_b):
     return dr.detach(dr.select(dr.isfinite(w), w, 0.0))
 
 
+def _eval_pdf_sample(bsdf, ctx, si, wo, sample1, sample2, active=True):
+    return bsdf.eval_pdf_sample(ctx, si, wo, sample1, sample2, active)
+
+
 def _not(mask):
     """Logical not of a mask, also for the Python bools of scalar variants (where ~ is wrong)."""
     return mask ^ True
@@ -214,8 +218,15 @@ def make_clothpath_class():
                 # ------ Evaluate BSDF * cos(theta) and sample a direction ------
                 sample_1 = sampler.next_1d()
                 sample_2 = sampler.next_2d()
-                bsdf_val, bsdf_pdf, bsdf_sample, bsdf_weight = bsdf.eval_pdf_sample(
-                    bsdf_ctx, si, wo, sample_1, sample_2)
+                if jit:
+                    # Through dr.dispatch, Python BSDFs (cloth) get their own
+                    # eval_pdf_sample, which shares work between its two directions;
+                    # the C++ trampoline would call eval_pdf and sample separately.
+                    bsdf_val, bsdf_pdf, bsdf_sample, bsdf_weight = dr.dispatch(
+                        bsdf, _eval_pdf_sample, bsdf_ctx, si, wo, sample_1, sample_2)
+                else:
+                    bsdf_val, bsdf_pdf, bsdf_sample, bsdf_weight = bsdf.eval_pdf_sample(
+                        bsdf_ctx, si, wo, sample_1, sample_2)
 
                 # ---------------- Emitter sampling contribution ---------------
                 if jit or active_em:
