@@ -293,9 +293,25 @@ def timed_render(scene, spp: int, seed: int) -> Render:
 # --------------------------------------------------------------------------- reference
 
 def reference_key(name: str, width: int, height: int, spp: int) -> str:
-    """SHA-256 of what determines the reference: scene name, resolution, spp, mscloth version."""
-    text = f"mscloth-reference|scene={name}|res={width}x{height}|spp={spp}|version={__version__}"
+    """SHA-256 of what determines the reference: the scene's dictionary (so an edited
+    built-in scene never reuses an old reference), resolution, spp, mscloth version."""
+    from .scenes.builtin import builtin_scene
+
+    scene = _scene_text(builtin_scene(name, width, height))
+    text = (f"mscloth-reference|scene={name}|res={width}x{height}|spp={spp}|version={__version__}"
+            f"|dict={scene}")
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _scene_text(node) -> str:
+    """A stable text of a scene dictionary (transforms by their matrices)."""
+    if isinstance(node, dict):
+        return "{" + ",".join(f"{k}:{_scene_text(node[k])}" for k in sorted(node)) + "}"
+    if isinstance(node, (list, tuple)):
+        return "[" + ",".join(_scene_text(v) for v in node) + "]"
+    if hasattr(node, "matrix"):
+        return repr(np.asarray(node.matrix, dtype=np.float64).round(9).tolist())
+    return repr(node)
 
 
 def reference_path(name: str, width: int, height: int, spp: int) -> Path:

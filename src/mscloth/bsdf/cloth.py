@@ -388,14 +388,15 @@ def make_cloth_class():
             pdf = dr.select(valid, pdf, 0.0)
             return value, pdf
 
-        def _footprint_state(self, si, fr, enabled, xi=None):
+        def _footprint_state(self, si, fr, enabled, xi=None, xi_round=None):
             """Everything of the footprint that does not depend on the outgoing direction,
             computed once per shading point and shared by eval, pdf and sample: the SAT
             means over the footprint, the control-variate residual texel, the viewer-side
             visibilities and the sampling mixture.
 
-            ``xi`` (2D in [0,1)) places the residual texel; by default a hash of si.uv, so
-            eval is a deterministic function of (si, wo)."""
+            ``xi`` (2D in [0,1)) places the residual texel and ``xi_round`` rounds the
+            directional SAT's corners; by default both are a hash of si.uv, so eval is a
+            deterministic function of (si, wo)."""
             fd = self.footprint_data
             sats = fd.scalar_sats
             fp = self._footprint(si, fr)
@@ -419,9 +420,14 @@ def make_cloth_class():
                 sgn = fr["sign"]
                 st["moments"] = (m[0], m[1], sgn * m[2], m[3], sgn * m[4], m[5])
 
-            # The texel of the control-variate residual, uniform in the footprint.
+            # The texel of the control-variate residual, uniform in the footprint, and the
+            # stochastic rounding of the directional SAT's corners (unbiased; one read per
+            # corner and bin instead of four: those reads dominate the cost).
             if xi is None:
-                xi = self._hash2(si)
+                xi, xi_round = self._hash4(si)
+            elif xi_round is None:
+                xi_round = mi.Point2f(0.5, 0.5)
+            st["q_d"] = sats.query_rounded(fp["x0"], fp["y0"], fp["x1"], fp["y1"], xi_round.x, xi_round.y)
             p = self._texel(fr, fp["x0"] + xi.x * (fp["x1"] - fp["x0"]), fp["y0"] + xi.y * (fp["y1"] - fp["y0"]))
             st["p"] = p
             if self.use_visibility:
@@ -469,7 +475,7 @@ def make_cloth_class():
                 bins, weights = hemisphere_bins(h, fd.dr)
                 d_yarn = mi.Float(0.0)  # mean over P of D(h, t) I
                 for b, wt in zip(bins, weights):
-                    d_yarn += wt * fd.d_sat.integral(st["q"], b)
+                    d_yarn += wt * fd.d_sat.integral(st["q_d"], b)
                 d_yarn *= st["inv_area"]
                 if self.use_visibility:
                     if fd.per_cluster:
@@ -478,7 +484,7 @@ def make_cloth_class():
                         for c in range(fd.clusters):
                             d_c = mi.Float(0.0)
                             for b, wt in zip(bins, weights):
-                                d_c += wt * fd.d_sat_cluster.integral(st["q"], c * n_bins + b)
+                                d_c += wt * fd.d_sat_cluster.integral(st["q_d"], c * n_bins + b)
                             base += st["cvis_i"][c] * cvis_o[c] * d_c
                         base *= st["inv_area"]
                     else:
@@ -541,17 +547,23 @@ def make_cloth_class():
                 pdf += self._pdf_point(pt, wo, enabled, pr)
             return m_tex * 0.25 * pdf + eps_c * dr.abs(wo.z) * (0.5 * dr.inv_pi)
 
-        def _hash2(self, si):
-            """Two deterministic pseudo-random numbers per uv: places the CCV residual texel
-            in eval(), where Mitsuba passes no random numbers."""
+        def _hash4(self, si):
+            """Four deterministic pseudo-random numbers per uv (two 2D points): the CCV
+            residual texel and the SAT rounding in eval(), where Mitsuba passes no random
+            numbers."""
             def bits(x):  # 24 well-mixed bits of a float's fractional part
                 return mi.UInt32((x - dr.floor(x)) * 16777216.0)
 
             a = bits(si.uv.x * 997.0 + si.uv.y * 31.0)
             b = bits(si.uv.y * 991.0 + si.uv.x * 37.0)
             v0, v1 = mi.sample_tea_32(a, b)
-            scale = 1.0 / 4294967296.0
-            return mi.Point2f(mi.Float(v0 >> 8) * (scale * 256.0), mi.Float(v1 >> 8) * (scale * 256.0))
+            v2, v3 = mi.sample_tea_32(v0, v1)
+            scale = 1.0 / 16777216.0
+
+            def unit(v):  # 24 bits -> [0, 1)
+                return mi.Float(v >> 8) * scale
+
+            return mi.Point2f(unit(v0), unit(v1)), mi.Point2f(unit(v2), unit(v3))
 
         def _mirror(self, fr, wo):
             return mi.Vector3f(wo.x, wo.y, fr["sign"] * wo.z)
@@ -575,6 +587,8 @@ def make_cloth_class():
             flake_t = dr.select(pick_sheen, up, t)
             flake_alpha = dr.select(pick_sheen, self.sheen_roughness, self.roughness)
             wo_flake, _ = spongecake.sample_specular(wi, flake_t, flake_alpha, sample2)
+            # Sheen samples fold to the upper hemisphere (see sheen.sample_sheen).
+            wo_flake.z = dr.select(pick_sheen, dr.abs(wo_flake.z), wo_flake.z)
             wo_diffuse = mi.warp.square_to_cosine_hemisphere(sample2)
             wo_diffuse.z = dr.select(pick_dt, -wo_diffuse.z, wo_diffuse.z)
             wo = dr.select(pick_sheen | pick_spec, wo_flake, wo_diffuse)
@@ -697,13 +711,22 @@ def make_cloth_class():
         def pdf(self, ctx, si, wo, active=True):
             return self.eval_pdf(ctx, si, wo, active)[1]
 
-        def eval_pdf_sample(self, ctx, si, wo, sample1, sample2, active=True):
-            # One footprint state for the emitter direction and the sampled direction:
-            # the SAT means, visibilities and mixture are direction-independent.
+        def eval_pdf_sample_n(self, ctx, si, wos, sample1, sample2, active=True):
+            """eval_pdf at every direction of ``wos`` and one sample, sharing one footprint
+            state (SAT means, visibilities, the sampling mixture: all independent of the
+            outgoing direction). Called by ``clothpath`` through ``dr.dispatch``."""
             enabled, fr, pt, probs, st = self._prepare(ctx, si, active)
-            value, pdf = self._eval_pdf_at(enabled, fr, pt, probs, st, self._mirror(fr, wo))
+            values, pdfs = [], []
+            for wo in wos:
+                value, pdf = self._eval_pdf_at(enabled, fr, pt, probs, st, self._mirror(fr, wo))
+                values.append(dr.select(active, value, 0.0))
+                pdfs.append(dr.select(active, pdf, 0.0))
             bs, weight = self._sample_record(si, fr, enabled, pt, probs, st, sample1, sample2, active)
-            return dr.select(active, value, 0.0), dr.select(active, pdf, 0.0), bs, weight
+            return values, pdfs, bs, weight
+
+        def eval_pdf_sample(self, ctx, si, wo, sample1, sample2, active=True):
+            values, pdfs, bs, weight = self.eval_pdf_sample_n(ctx, si, [wo], sample1, sample2, active)
+            return values[0], pdfs[0], bs, weight
 
         def traverse(self, callback):
             for name in FLOAT_PARAMETERS:

@@ -29,13 +29,17 @@ def gather(source, index, active=True):
 
 class RectQuery:
     """The corner geometry of one texel rectangle, computed once and shared by every
-    channel read from any :class:`ResidualSATs` of the same tile size."""
+    channel read from any :class:`ResidualSATs` of the same tile size.
 
-    def __init__(self, sats: "ResidualSATs", x0, y0, x1, y1):
+    ``on_grid``: the corners are whole texel coordinates, so each corner is one read
+    instead of four (see :meth:`ResidualSATs.query_rounded`)."""
+
+    def __init__(self, sats: "ResidualSATs", x0, y0, x1, y1, on_grid=False):
         self.area = (x1 - x0) * (y1 - y0)
+        self.on_grid = on_grid
         # The rectangle's integral: S(x1,y1) - S(x0,y1) - S(x1,y0) + S(x0,y0).
-        self.corners = [(1.0, sats._corner(x1, y1)), (-1.0, sats._corner(x0, y1)),
-                        (-1.0, sats._corner(x1, y0)), (1.0, sats._corner(x0, y0))]
+        self.corners = [(1.0, sats._corner(x1, y1, on_grid)), (-1.0, sats._corner(x0, y1, on_grid)),
+                        (-1.0, sats._corner(x1, y0, on_grid)), (1.0, sats._corner(x0, y0, on_grid))]
 
 
 class _Corner:
@@ -71,15 +75,19 @@ class ResidualSATs:
     def nbytes(self) -> int:
         return 4 * (len(self.data) + len(self.last_col) + len(self.last_row) + 2 * self.channels)
 
-    def _corner(self, x, y):
+    def _corner(self, x, y, on_grid=False):
         W, H = float(self.W), float(self.H)
         c = _Corner()
         c.qx = dr.floor(x / W)
         c.qy = dr.floor(y / H)
         rx = dr.clip(x - c.qx * W, 0.0, W)
         ry = dr.clip(y - c.qy * H, 0.0, H)
-        ix = dr.minimum(mi.UInt32(dr.floor(rx)), self.W - 1)
-        iy = dr.minimum(mi.UInt32(dr.floor(ry)), self.H - 1)
+        if on_grid:  # whole coordinates: the grid point itself, W and H included
+            ix = mi.UInt32(dr.round(rx))
+            iy = mi.UInt32(dr.round(ry))
+        else:
+            ix = dr.minimum(mi.UInt32(dr.floor(rx)), self.W - 1)
+            iy = dr.minimum(mi.UInt32(dr.floor(ry)), self.H - 1)
         c.fx = rx - mi.Float(ix)
         c.fy = ry - mi.Float(iy)
         c.ix, c.iy = ix, iy
@@ -94,6 +102,17 @@ class ResidualSATs:
         position: periodic); valid for every table of the same tile size."""
         return RectQuery(self, x0, y0, x1, y1)
 
+    def query_rounded(self, x0, y0, x1, y1, xi_x, xi_y) -> RectQuery:
+        """The rectangle with its corners rounded stochastically to whole texels:
+        x -> floor(x + xi_x), y -> floor(y + xi_y), with xi uniform in [0, 1).
+
+        S(x, y) is bilinear inside a texel, and rounding x up with probability frac(x)
+        (independently of y) gives the bilinear weights, so the expected integral is the
+        exact one while each corner costs one read instead of four. One xi per axis keeps
+        the rounded width within one texel of the true width (less noise)."""
+        return RectQuery(self, dr.floor(x0 + xi_x), dr.floor(y0 + xi_y),
+                         dr.floor(x1 + xi_x), dr.floor(y1 + xi_y), on_grid=True)
+
     def integral(self, q: RectQuery, channel):
         """Integral of the original values of ``channel`` (int or per-lane UInt32) over the
         rectangle of query ``q`` (made by any table of this tile size)."""
@@ -104,15 +123,20 @@ class ResidualSATs:
         residual = mi.Float(0.0)
         for sign, c in q.corners:
             i00 = c.cell * C + channel
-            v00 = gather(self.data, i00)
-            v01 = gather(self.data, i00 + C)
-            v10 = gather(self.data, i00 + row_stride)
-            v11 = gather(self.data, i00 + row_stride + C)
-            inner = dr.lerp(dr.lerp(v00, v01, c.fx), dr.lerp(v10, v11, c.fx), c.fy)
             col = c.iy * C + channel
-            col = dr.lerp(gather(self.last_col, col, c.use_col), gather(self.last_col, col + C, c.use_col), c.fy)
             row = c.ix * C + channel
-            row = dr.lerp(gather(self.last_row, row, c.use_row), gather(self.last_row, row + C, c.use_row), c.fx)
+            if q.on_grid:  # fx = fy = 0 up to rounding: the corner's own value
+                inner = gather(self.data, i00)
+                col = gather(self.last_col, col, c.use_col)
+                row = gather(self.last_row, row, c.use_row)
+            else:
+                v00 = gather(self.data, i00)
+                v01 = gather(self.data, i00 + C)
+                v10 = gather(self.data, i00 + row_stride)
+                v11 = gather(self.data, i00 + row_stride + C)
+                inner = dr.lerp(dr.lerp(v00, v01, c.fx), dr.lerp(v10, v11, c.fx), c.fy)
+                col = dr.lerp(gather(self.last_col, col, c.use_col), gather(self.last_col, col + C, c.use_col), c.fy)
+                row = dr.lerp(gather(self.last_row, row, c.use_row), gather(self.last_row, row + C, c.use_row), c.fx)
             residual += sign * (c.qx * c.qy * total + c.qx * col + c.qy * row + inner)
         return residual + gather(self.mean, channel) * q.area
 

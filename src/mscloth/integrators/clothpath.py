@@ -15,10 +15,13 @@ Path tracer with pixel footprints (``clothpath``)
 -------------------------------------------------
 
 Mitsuba's ``path`` integrator (3.9.1: emitter sampling, BSDF sampling, power-heuristic MIS,
-the same Russian roulette rule and the same order of random numbers), which in addition hands
+the same Russian roulette rule; with ``emitter_sampling=one`` the same order of random
+numbers), which in addition hands
 every BSDF call the pixel footprint of its shading point in ``si.duv_dx`` / ``si.duv_dy``
 (Mitsuba's ``path`` drops ray differentials, so BSDFs see zeros there). On scenes whose BSDFs
-ignore ``duv_dx`` / ``duv_dy`` it renders the same image as ``path``.
+ignore ``duv_dx`` / ``duv_dy`` it renders the same image as ``path`` (``emitter_sampling=one``)
+or converges to it (``all``, the default, which has less noise where several emitters light
+the scene).
 
 * first hit: the camera's ray differentials, rescaled to the whole pixel (Mitsuba scales
   them by 1/sqrt(spp)), intersected with the tangent plane;
@@ -48,6 +51,12 @@ centred on ``si.uv`` with half-widths 1/2 (|du/dx| + |du/dy|) and 1/2 (|dv/dx| +
      - boolean
      - false
      - Hide directly visible emitters.
+   * - emitter_sampling
+     - string
+     - ``all``
+     - ``all``: sample every emitter once at each vertex (MIS with BSDF sampling per
+       emitter), so a sun and a sky never compete for one sample; ``one``: pick one
+       emitter per vertex as Mitsuba's ``path`` does (same image with the same seed).
 
 AOVs ``footprint_u`` and ``footprint_v``: the footprint half-widths in UV at the first hit
 (0 where the camera ray escapes), e.g. ``footprint_u`` = 1/(2N) for a UV square seen
@@ -67,7 +76,11 @@ def _read_properties(props):
     rr_depth = props.get("rr_depth", 5)
     if not isinstance(rr_depth, int) or rr_depth <= 0:
         raise ValueError(f'clothpath: "rr_depth" must be an integer > 0, got {rr_depth!r}')
-    return (_UINT32_MAX if max_depth == -1 else max_depth), rr_depth
+    emitter_sampling = props.get("emitter_sampling", "all")
+    if emitter_sampling not in ("all", "one"):
+        raise ValueError('clothpath: "emitter_sampling" must be "all" or "one", '
+                         f"got {emitter_sampling!r}")
+    return (_UINT32_MAX if max_depth == -1 else max_depth), rr_depth, emitter_sampling
 
 
 def mis_weight(pdf_a, pdf_b):
@@ -78,8 +91,24 @@ def mis_weight(pdf_a, pdf_b):
     return dr.detach(dr.select(dr.isfinite(w), w, 0.0))
 
 
-def _eval_pdf_sample(bsdf, ctx, si, wo, sample1, sample2, active=True):
-    return bsdf.eval_pdf_sample(ctx, si, wo, sample1, sample2, active)
+def eval_pdf_sample_n(bsdf, ctx, si, wos, sample1, sample2, active=True):
+    """eval_pdf at each direction of ``wos`` and one sample: ([values], [pdfs], bs, weight).
+
+    BSDFs with their own ``eval_pdf_sample_n`` (``cloth``) share the work of one shading
+    point between all directions; others get eval_pdf / sample calls (one direction:
+    eval_pdf_sample, exactly as ``path``)."""
+    if hasattr(bsdf, "eval_pdf_sample_n"):
+        return bsdf.eval_pdf_sample_n(ctx, si, wos, sample1, sample2, active)
+    if len(wos) == 1:
+        value, pdf, bs, weight = bsdf.eval_pdf_sample(ctx, si, wos[0], sample1, sample2, active)
+        return [value], [pdf], bs, weight
+    values, pdfs = [], []
+    for wo in wos:
+        value, pdf = bsdf.eval_pdf(ctx, si, wo, active)
+        values.append(value)
+        pdfs.append(pdf)
+    bs, weight = bsdf.sample(ctx, si, sample1, sample2, active)
+    return values, pdfs, bs, weight
 
 
 def _not(mask):
@@ -102,7 +131,7 @@ def make_clothpath_class():
 
         def __init__(self, props):
             mi.SamplingIntegrator.__init__(self, props)
-            self.max_depth, self.rr_depth = _read_properties(props)
+            self.max_depth, self.rr_depth, self.emitter_sampling = _read_properties(props)
             # Off by default: an RGB image from mi.render, as with Mitsuba's `path`.
             self.footprint_aovs = props.get("footprint_aovs", False)
             if not isinstance(self.footprint_aovs, bool):
@@ -115,7 +144,8 @@ def make_clothpath_class():
         def to_string(self):
             depth = -1 if self.max_depth == _UINT32_MAX else self.max_depth
             return (f"ClothPathIntegrator[max_depth = {depth}, rr_depth = {self.rr_depth}, "
-                    f"hide_emitters = {self.hide_emitters}]")
+                    f"hide_emitters = {self.hide_emitters}, "
+                    f"emitter_sampling = {self.emitter_sampling}]")
 
         def sample(self, scene, sampler, ray, medium=None, active=True):
             if self.max_depth == 0:
@@ -140,6 +170,8 @@ def make_clothpath_class():
             rr_depth = self.rr_depth
             hide_emitters = self.hide_emitters
             o_x, d_x, o_y, d_y = ray_d.o_x, ray_d.d_x, ray_d.o_y, ray_d.d_y  # loop-invariant
+            emitters = list(scene.emitters())
+            all_emitters = self.emitter_sampling == "all" and len(emitters) > 1
 
             ray = mi.Ray3f(ray_d)
             pi = scene.ray_intersect_preliminary(ray, coherent=True, active=active)
@@ -192,7 +224,10 @@ def make_clothpath_class():
                     ds = mi.DirectionSample3f(scene, si=si, ref=prev_si)
                     em_pdf = mi.Float(0.0)
                     if jit or not prev_bsdf_delta:
-                        em_pdf = scene.pdf_emitter_direction(prev_si, ds, _not(prev_bsdf_delta))
+                        if all_emitters:  # no emitter selection: the emitter's own pdf
+                            em_pdf = ds.emitter.pdf_direction(prev_si, ds, _not(prev_bsdf_delta))
+                        else:
+                            em_pdf = scene.pdf_emitter_direction(prev_si, ds, _not(prev_bsdf_delta))
                     mis_bsdf = mis_weight(prev_bsdf_pdf, em_pdf)
                     result = spec_fma(throughput,
                                       ds.emitter.eval(si, prev_bsdf_pdf > 0.0) * mis_bsdf, result)
@@ -208,33 +243,42 @@ def make_clothpath_class():
 
                 # ---------------------- Emitter sampling ---------------------
                 active_em = active_next & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-                wo = mi.Vector3f(0.0)
+                em_samples = []  # (ds, weight, active, local direction) per emitter sample
                 if jit or active_em:
-                    ds, em_weight = scene.sample_emitter_direction(si, sampler.next_2d(), True,
-                                                                   active_em)
-                    active_em &= ds.pdf != 0.0
-                    wo = si.to_local(ds.d)
+                    if all_emitters:
+                        for emitter in emitters:
+                            ds, em_weight = emitter.sample_direction(si, sampler.next_2d(), active_em)
+                            em_active = active_em & (ds.pdf != 0.0)
+                            if jit or em_active:
+                                occluded = scene.ray_test(si.spawn_ray_to(ds.p), em_active)
+                                em_active &= _not(occluded)
+                            em_samples.append((ds, em_weight, em_active, si.to_local(ds.d)))
+                    else:
+                        ds, em_weight = scene.sample_emitter_direction(si, sampler.next_2d(), True,
+                                                                       active_em)
+                        em_samples.append((ds, em_weight, active_em & (ds.pdf != 0.0), si.to_local(ds.d)))
+                if not em_samples:
+                    em_samples.append((None, None, False, mi.Vector3f(0.0)))
 
                 # ------ Evaluate BSDF * cos(theta) and sample a direction ------
                 sample_1 = sampler.next_1d()
                 sample_2 = sampler.next_2d()
+                wos = [e[3] for e in em_samples]
                 if jit:
-                    # Through dr.dispatch, Python BSDFs (cloth) get their own
-                    # eval_pdf_sample, which shares work between its two directions;
-                    # the C++ trampoline would call eval_pdf and sample separately.
-                    bsdf_val, bsdf_pdf, bsdf_sample, bsdf_weight = dr.dispatch(
-                        bsdf, _eval_pdf_sample, bsdf_ctx, si, wo, sample_1, sample_2)
+                    bsdf_vals, bsdf_pdfs, bsdf_sample, bsdf_weight = dr.dispatch(
+                        bsdf, eval_pdf_sample_n, bsdf_ctx, si, wos, sample_1, sample_2)
                 else:
-                    bsdf_val, bsdf_pdf, bsdf_sample, bsdf_weight = bsdf.eval_pdf_sample(
-                        bsdf_ctx, si, wo, sample_1, sample_2)
+                    bsdf_vals, bsdf_pdfs, bsdf_sample, bsdf_weight = eval_pdf_sample_n(
+                        bsdf, bsdf_ctx, si, wos, sample_1, sample_2)
 
                 # ---------------- Emitter sampling contribution ---------------
-                if jit or active_em:
-                    bsdf_val = si.to_world_mueller(bsdf_val, -wo, si.wi)
-                    mis_em = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, bsdf_pdf))
-                    result = dr.select(active_em,
-                                       spec_fma(throughput, bsdf_val * em_weight * mis_em, result),
-                                       result)
+                for (ds, em_weight, em_active, wo), bsdf_val, bsdf_pdf in zip(em_samples, bsdf_vals, bsdf_pdfs):
+                    if jit or em_active:
+                        bsdf_val = si.to_world_mueller(bsdf_val, -wo, si.wi)
+                        mis_em = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, bsdf_pdf))
+                        result = dr.select(em_active,
+                                           spec_fma(throughput, bsdf_val * em_weight * mis_em, result),
+                                           result)
 
                 # ----------------------- BSDF sampling ------------------------
                 bsdf_weight = si.to_world_mueller(bsdf_weight, -bsdf_sample.wo, si.wi)

@@ -29,13 +29,22 @@ def eval_sheen(wi, wo, alpha_s, thickness_s):
 
 
 def sample_sheen(wi, alpha_s, sample):
-    """(wo, pdf) from the fuzz's visible normals; wo below the surface is a failed sample."""
-    return spongecake.sample_specular(wi, _up(wi), alpha_s, sample)
+    """(wo, pdf) from the fuzz's visible normals, folded to the upper hemisphere.
+
+    At grazing incidence a large part of the visible-normal reflections points below the
+    surface, where the sheen lobe is zero; mirroring them (z -> |z|) keeps every sample
+    useful instead of returning a zero-weight sample (38% of them at 80 degrees)."""
+    wo, _ = spongecake.sample_specular(wi, _up(wi), alpha_s, sample)
+    wo = mi.Vector3f(wo.x, wo.y, dr.abs(wo.z))
+    return wo, pdf_sheen(wi, wo, alpha_s)
 
 
 def pdf_sheen(wi, wo, alpha_s):
-    """Density of :func:`sample_sheen` (counting the mass that lands below)."""
-    return spongecake.pdf_specular(wi, wo, _up(wi), alpha_s)
+    """Density of :func:`sample_sheen`: the visible-normal reflection density at wo plus
+    at its mirror image below the surface (zero for wo below)."""
+    below = mi.Vector3f(wo.x, wo.y, -wo.z)
+    pdf = spongecake.pdf_specular(wi, wo, _up(wi), alpha_s) + spongecake.pdf_specular(wi, below, _up(wi), alpha_s)
+    return dr.select(wo.z > 0.0, pdf, 0.0)
 
 
 def sheen_transmittance(w, alpha_s, thickness_s):
