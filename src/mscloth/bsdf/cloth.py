@@ -131,6 +131,11 @@ transmission, 5 gap (delta transmission).
 """
 
 
+def _unzip(pairs):
+    """[(a, b), ...] -> ([a, ...], [b, ...])."""
+    return [p[0] for p in pairs], [p[1] for p in pairs]
+
+
 def _not(mask):
     """Logical not, also for the Python bools of scalar variants (where ~ gives an int)."""
     return mask ^ True
@@ -282,8 +287,14 @@ def make_cloth_class():
             return [ctx.is_enabled(lobe_types[c], c) for c in range(6)]
 
         def _lobe_probabilities(self, pt, enabled):
-            """Selection probabilities, proportional to each lobe's estimated albedo."""
-            k, wi, yarn, ts = pt["k"], pt["wi"], pt["yarn"], pt["t_sheen_i"]
+            """Selection probabilities of the texel's lobes, proportional to each lobe's
+            estimated albedo."""
+            scattered = 1.0 - spongecake.unscattered_transmittance(pt["wi"], pt["tangent"], self.roughness, self.thickness)
+            return self._lobe_weights(pt["k"], pt["wi"], pt["yarn"], pt["t_sheen_i"], scattered, enabled)
+
+        def _lobe_weights(self, k, wi, yarn, ts, scattered, enabled):
+            """Normalised albedo estimates of the six lobes for yarn coverage ``yarn``, lobe
+            albedos ``k`` (yarn colour included) and scattered fraction ``scattered``."""
             zero = dr.zeros(mi.Float, dr.width(wi))
             w = [zero] * 6
             if enabled[SHEEN]:
@@ -293,7 +304,6 @@ def make_cloth_class():
                 spec = _max_channel(k["specular_albedo"])
             if enabled[SPECULAR_TRANSMISSION]:
                 spec = dr.maximum(spec, _max_channel(k["specular_transmittance"]))
-            scattered = 1.0 - spongecake.unscattered_transmittance(wi, pt["tangent"], self.roughness, self.thickness)
             w[SPECULAR_REFLECTION] = ts * yarn * spec * scattered
             if enabled[DIFFUSE_REFLECTION]:
                 w[DIFFUSE_REFLECTION] = ts * yarn * _max_channel(k["diffuse_albedo"])
@@ -420,49 +430,63 @@ def make_cloth_class():
                 sgn = fr["sign"]
                 st["moments"] = (m[0], m[1], sgn * m[2], m[3], sgn * m[4], m[5])
 
-            # The texel of the control-variate residual, uniform in the footprint, and the
-            # stochastic rounding of the directional SAT's corners (unbiased; one read per
-            # corner and bin instead of four: those reads dominate the cost).
+            # Four texels of the control-variate residual, one uniform in each quadrant of
+            # the footprint (stratified: a quarter of the variance of one texel or less),
+            # and the stochastic rounding of the directional SAT's corners (unbiased; one
+            # read per corner and bin instead of four: those reads dominate the cost).
             if xi is None:
                 xi, xi_round = self._hash4(si)
             elif xi_round is None:
                 xi_round = mi.Point2f(0.5, 0.5)
             st["q_d"] = sats.query_rounded(fp["x0"], fp["y0"], fp["x1"], fp["y1"], xi_round.x, xi_round.y)
-            p = self._texel(fr, fp["x0"] + xi.x * (fp["x1"] - fp["x0"]), fp["y0"] + xi.y * (fp["y1"] - fp["y0"]))
-            st["p"] = p
+            st["texels"] = texels = self._stratified_texels(fr, fp, xi)
             if self.use_visibility:
-                cluster = fd.cluster_of(p["ix"], p["iy"])
-                st["cluster_p"] = cluster
-                st["v_i_p"] = fd.visibility_at(p["ix"], p["iy"], fr["wi"], fr["flip"])
                 st["cvis_i"] = cvis_i = fd.cluster_visibilities(fr["wi"], fr["flip"])
-                st["cvis_i_p"] = _pick(cvis_i, cluster)
+                for t_ in texels:
+                    t_["cluster"] = fd.cluster_of(t_["ix"], t_["iy"])
+                    t_["v_i"] = fd.visibility_at(t_["ix"], t_["iy"], fr["wi"], fr["flip"])
+                    t_["cvis_i"] = _pick(cvis_i, t_["cluster"])
                 if enabled[DIFFUSE_REFLECTION] or enabled[DIFFUSE_TRANSMISSION]:
                     st["fractions"] = [mean(fd.CLUSTERS + c) for c in range(fd.clusters)]
 
-            # The sampling mixture: four texels, defensive cosine and gap components.
-            st["texels"] = texels = self._mixture_texels(fr, fp)
-            st["tex_probs"] = [self._lobe_probabilities(t_, enabled) for t_ in texels]
-            eps_c, eps_d, _ = self._mixture_weights(enabled, yarn_mean)
+            # The sampling mixture: lobes chosen by the footprint's own averages (yarn
+            # coverage, yarn colour, mean SGGX matrix), the specular lobe from the tangent
+            # of one of the four texels, and a defensive cosine component.
+            k = dict(fr["k"])
+            for name in ("specular_albedo", "specular_transmittance", "diffuse_albedo", "diffuse_transmittance"):
+                k[name] = k[name] * st["yarn_albedo"]
+            scattered = mi.Float(0.0)
+            if "moments" in st:
+                scattered = 1.0 - dr.exp(-self.thickness * self._mean_sigma(st, fr["wi"]) / fr["wi"].z)
+            st["fp_probs"] = self._lobe_weights(k, fr["wi"], yarn_mean, fr["t_sheen_i"], scattered, enabled)
+            eps_c = self.DEFENSIVE_COSINE if any(enabled[:5]) else 0.0
             st["eps_c"] = dr.select(fp["use"], eps_c, 0.0)
-            st["eps_d"] = dr.select(fp["use"], eps_d, 0.0)
-            st["m_tex"] = 1.0 - st["eps_c"] - st["eps_d"]
             return st
+
+        def _mean_sigma(self, st, w):
+            """sigma(w) of the footprint's mean SGGX matrix S = I - (1 - alpha^2) <t t^T>."""
+            m_xx, m_xy, m_xz, m_yy, m_yz, m_zz = st["moments"]
+            alpha2 = self.roughness * self.roughness
+            q = (w.x * w.x * m_xx + w.y * w.y * m_yy + w.z * w.z * m_zz
+                 + 2.0 * (w.x * w.y * m_xy + w.x * w.z * m_xz + w.y * w.z * m_yz))
+            return dr.safe_sqrt(dr.maximum(1.0 - (1.0 - alpha2) * q, alpha2))
 
         def _eval_footprint(self, fr, st, wo, enabled):
             """Footprint-averaged non-delta f*|cos o| (Eq. 9-14 with CCV), mirrored frame."""
             fd = self.footprint_data
             wi = fr["wi"]
             k = fr["k"]
-            p = st["p"]
+            texels = st["texels"]
             cos_o = wo.z
             up = cos_o > 0.0
             valid = (wi.z > spongecake.COS_EPSILON) & (dr.abs(cos_o) > spongecake.COS_EPSILON)
             yarn_albedo = st["yarn_albedo"]
 
             if self.use_visibility:
-                v_p = st["v_i_p"] * self._visibility_o(p, wo)
+                # Per residual texel: V(p, i, o) and its cluster's mean v_c(i) v_c(o).
                 cvis_o = self._cluster_visibilities_o(fr, wo)
-                vbar_p = st["cvis_i_p"] * _pick(cvis_o, st["cluster_p"])
+                v_p = [t_["v_i"] * self._visibility_o(t_, wo) for t_ in texels]
+                vbar_p = [t_["cvis_i"] * _pick(cvis_o, t_["cluster"]) for t_ in texels]
 
             value = mi.Color3f(0.0)
             if enabled[SHEEN]:
@@ -488,23 +512,18 @@ def make_cloth_class():
                             base += st["cvis_i"][c] * cvis_o[c] * d_c
                         base *= st["inv_area"]
                     else:
-                        base = d_yarn * vbar_p
-                    d_p = sggx.ndf(h, p["tangent"], self.roughness) * p["yarn"]
-                    # An unbiased control-variate estimate: it can dip below zero for one
-                    # residual texel (V(p) = 0 under a bright base); clamping it biased
+                        base = d_yarn * 0.25 * (vbar_p[0] + vbar_p[1] + vbar_p[2] + vbar_p[3])
+                    residual = mi.Float(0.0)
+                    for t_, v, vbar in zip(texels, v_p, vbar_p):
+                        residual += sggx.ndf(h, t_["tangent"], self.roughness) * t_["yarn"] * (v - vbar)
+                    # An unbiased control-variate estimate: it can dip below zero for the
+                    # residual texels (V(p) = 0 under a bright base); clamping it biased
                     # grazing highlights by up to +90% (docs/decisions.md), so we do not.
-                    d_visible = base + d_p * (v_p - vbar_p)
+                    d_visible = base + 0.25 * residual
                 else:
                     d_visible = d_yarn
-                m_xx, m_xy, m_xz, m_yy, m_yz, m_zz = st["moments"]
-                alpha2 = self.roughness * self.roughness
-
-                def sigma(w):
-                    q = (w.x * w.x * m_xx + w.y * w.y * m_yy + w.z * w.z * m_zz
-                         + 2.0 * (w.x * w.y * m_xy + w.x * w.z * m_xz + w.y * w.z * m_yz))
-                    return dr.safe_sqrt(dr.maximum(1.0 - (1.0 - alpha2) * q, alpha2))
-
-                spec, _ = spongecake.eval_specular_from(d_visible, sigma(wi), sigma(wo), wi, wo, self.thickness)
+                spec, _ = spongecake.eval_specular_from(d_visible, self._mean_sigma(st, wi),
+                                                        self._mean_sigma(st, wo), wi, wo, self.thickness)
                 if enabled[SPECULAR_REFLECTION]:
                     reflection += k["specular_albedo"] * yarn_albedo * spec
                 if enabled[SPECULAR_TRANSMISSION]:
@@ -512,7 +531,9 @@ def make_cloth_class():
             if enabled[DIFFUSE_REFLECTION] or enabled[DIFFUSE_TRANSMISSION]:
                 if self.use_visibility:
                     # Eq. 14 through the cluster histogram, plus the same residual texel.
-                    yarn_visible = p["yarn"] * (v_p - vbar_p)
+                    yarn_visible = mi.Float(0.0)
+                    for t_, v, vbar in zip(texels, v_p, vbar_p):
+                        yarn_visible += 0.25 * t_["yarn"] * (v - vbar)
                     for c in range(fd.clusters):
                         yarn_visible += st["cvis_i"][c] * cvis_o[c] * st["fractions"][c]
                 else:
@@ -526,26 +547,49 @@ def make_cloth_class():
             value += under_fuzz * dr.select(up, reflection, transmission)
             return dr.select(valid, value, 0.0)
 
-        # The footprint BSDF is sampled as a mixture: one of four texels at the centres of
-        # the footprint's quadrants (their fibre-level lobes), plus defensive cosine and gap
-        # components so every lobe of the footprint average stays reachable.
+        # The footprint BSDF is sampled as a mixture: a lobe chosen by the footprint's
+        # averages (so the gap, diffuse and specular shares match the footprint form), the
+        # specular lobe from one of the four stratified texels, and a defensive cosine
+        # component that keeps every direction reachable.
         DEFENSIVE_COSINE = 0.1
-        DEFENSIVE_GAP = 0.05
 
-        def _mixture_texels(self, fr, fp):
-            return [self._texel(fr, fr["x"] + sx * 0.5 * fp["rx"], fr["y"] + sy * 0.5 * fp["ry"])
-                    for sx, sy in ((-1, -1), (1, -1), (-1, 1), (1, 1))]
+        # Offsets of the four stratified texels' random numbers (a rotated 2x2 lattice):
+        # each stays uniform in its quadrant, and together they spread further.
+        _STRATA = ((0.0, 0.0, 0.0, 0.0), (1.0, 0.0, 0.5, 0.25), (0.0, 1.0, 0.25, 0.75), (1.0, 1.0, 0.75, 0.5))
 
-        def _mixture_weights(self, enabled, yarn_mean):
-            eps_c = self.DEFENSIVE_COSINE if any(enabled[:5]) else 0.0
-            eps_d = dr.select(enabled[GAP] & (yarn_mean < 1.0), self.DEFENSIVE_GAP, 0.0)
-            return eps_c, eps_d, 1.0 - eps_c - eps_d
+        def _stratified_texels(self, fr, fp, xi):
+            """Four texels, one uniform in each quadrant of the footprint (from ``xi``)."""
+            texels = []
+            for qx, qy, cx, cy in self._STRATA:
+                sx = xi.x + cx
+                sy = xi.y + cy
+                sx = sx - dr.floor(sx)
+                sy = sy - dr.floor(sy)
+                texels.append(self._texel(fr, fp["x0"] + (qx + sx) * fp["rx"], fp["y0"] + (qy + sy) * fp["ry"]))
+            return texels
 
-        def _mixture_pdf(self, texels, probs, wo, enabled, eps_c, m_tex):
+        def _mixture_pdf(self, fr, st, wo, enabled):
+            """Density of the footprint mixture's non-delta directions (mirrored frame)."""
+            wi = fr["wi"]
+            probs = st["fp_probs"]
+            up = wo.z > 0.0
+            valid = (wi.z > spongecake.COS_EPSILON) & (dr.abs(wo.z) > spongecake.COS_EPSILON)
             pdf = mi.Float(0.0)
-            for pt, pr in zip(texels, probs):
-                pdf += self._pdf_point(pt, wo, enabled, pr)
-            return m_tex * 0.25 * pdf + eps_c * dr.abs(wo.z) * (0.5 * dr.inv_pi)
+            if enabled[SHEEN]:
+                pdf += probs[SHEEN] * sheen.pdf_sheen(wi, wo, self.sheen_roughness)
+            if enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]:
+                side_ok = (up & enabled[SPECULAR_REFLECTION]) | (_not(up) & enabled[SPECULAR_TRANSMISSION])
+                spec = mi.Float(0.0)
+                for t_ in st["texels"]:
+                    spec += spongecake.pdf_specular(wi, wo, t_["tangent"], self.roughness)
+                pdf += probs[SPECULAR_REFLECTION] * dr.select(side_ok, 0.25 * spec, 0.0)
+            cosine = dr.abs(wo.z) * dr.inv_pi
+            if enabled[DIFFUSE_REFLECTION]:
+                pdf += probs[DIFFUSE_REFLECTION] * dr.select(up, cosine, 0.0)
+            if enabled[DIFFUSE_TRANSMISSION]:
+                pdf += probs[DIFFUSE_TRANSMISSION] * dr.select(up, 0.0, cosine)
+            eps_c = st["eps_c"]
+            return dr.select(valid, (1.0 - eps_c) * pdf + eps_c * 0.5 * cosine, 0.0)
 
         def _hash4(self, si):
             """Four deterministic pseudo-random numbers per uv (two 2D points): the CCV
@@ -606,104 +650,128 @@ def make_cloth_class():
         # ------------------------------------------------------------------
         # Shared by the mi.BSDF methods
         # ------------------------------------------------------------------
-        def _prepare(self, ctx, si, active):
-            """The per-shading-point state of every method: enabled lobes, the viewer's
-            frame, the texel under si.uv with its lobe probabilities, and (multi-scale)
-            the footprint state."""
-            enabled = self._enabled(ctx)
-            fr = self._frame(si, active)
+        def _point_branch(self, si, fr, enabled, wos, samples, active):
+            """(values, pdfs, sample record) of the fibre-level BSDF at the texel under
+            si.uv, for the mirrored directions ``wos`` and, if given, one sample."""
             pt = self._texel(fr, fr["x"], fr["y"])
             probs = self._lobe_probabilities(pt, enabled)
-            st = self._footprint_state(si, fr, enabled) if self.multiscale else None
-            return enabled, fr, pt, probs, st
 
-        def _eval_pdf_at(self, enabled, fr, pt, probs, st, wo):
-            """(f*|cos o|, pdf) of the non-delta lobes at ``wo`` (mirrored frame): the
-            footprint form where the footprint is used, the texel's otherwise."""
-            value, pdf = self._eval_pdf_point(pt, wo, enabled, probs)
-            if st is not None:
-                use = st["fp"]["use"]
-                value = dr.select(use, self._eval_footprint(fr, st, wo, enabled), value)
-                pdf = dr.select(use, self._mixture_pdf(st["texels"], st["tex_probs"], wo, enabled,
-                                                       st["eps_c"], st["m_tex"]), pdf)
-            return value, pdf
+            def eval_pdf(wo):
+                return self._eval_pdf_point(pt, wo, enabled, probs)
 
-        def _sample_at(self, enabled, fr, pt, probs, st, sample1, sample2, active):
-            """A direction from the texel's lobes or, where the footprint is used, from
-            the footprint mixture: (wo mirrored, ok, component, gap_ok, gap_pdf, gap_value)."""
-            if st is None:
-                wo, ok, component, gap_ok = self._sample_point(pt, probs, enabled, sample1, sample2, active)
-                gap_value = pt["t_sheen_i"] * pt["t_sheen_i"] * (1.0 - pt["yarn"])
-                return wo, ok, component, gap_ok, probs[GAP], gap_value
-            use = st["fp"]["use"]
-            texels, tex_probs = st["texels"], st["tex_probs"]
-            eps_c, eps_d, m_tex = st["eps_c"], st["eps_d"], st["m_tex"]
-            # Split sample1: defensive gap | defensive cosine | one of four texels.
-            pick_def_gap = sample1 < eps_d
-            pick_def_cos = _not(pick_def_gap) & (sample1 < eps_d + eps_c)
-            u = (sample1 - eps_d - eps_c) / dr.select(m_tex > 0.0, m_tex, 1.0)
-            quad = mi.UInt32(dr.clip(dr.floor(u * 4.0), 0, 3))
-            u = dr.clip(u * 4.0 - mi.Float(quad), 0.0, 0.99999994)
-            # Sub-texel footprints are the fibre-level BSDF at the texel itself.
-            chosen = dict(pt)
-            chosen_probs = list(probs)
-            for q in range(4):
-                sel = use & (quad == q)
-                for key in ("tangent", "yarn", "ix", "iy"):
-                    chosen[key] = dr.select(sel, texels[q][key], chosen[key])
-                chosen["k"] = {n: dr.select(sel, texels[q]["k"][n], chosen["k"][n]) for n in chosen["k"]}
-                chosen_probs = [dr.select(sel, a, b) for a, b in zip(tex_probs[q], chosen_probs)]
-            u = dr.select(use, u, sample1)
+            record = ()
+            if samples is not None:
+                wo, ok, component, gap_ok = self._sample_point(pt, probs, enabled, *samples, active)
+                gap_value = fr["t_sheen_i"] * fr["t_sheen_i"] * (1.0 - pt["yarn"])
+                record = self._sample_record(si, fr, eval_pdf, wo, ok, component, gap_ok, probs[GAP], gap_value)
+            values, pdfs = _unzip([eval_pdf(wo) for wo in wos])
+            return values, pdfs, record
 
-            wo, ok, component, gap_ok = self._sample_point(chosen, chosen_probs, enabled, u, sample2, active)
+        def _footprint_branch(self, si, fr, enabled, wos, samples, active):
+            """The same for the footprint BSDF (multi-scale shading)."""
+            st = self._footprint_state(si, fr, enabled)
+
+            def eval_pdf(wo):
+                return self._eval_footprint(fr, st, wo, enabled), self._mixture_pdf(fr, st, wo, enabled)
+
+            record = ()
+            if samples is not None:
+                record = self._sample_record(si, fr, eval_pdf, *self._sample_footprint(fr, st, enabled, *samples, active))
+            values, pdfs = _unzip([eval_pdf(wo) for wo in wos])
+            return values, pdfs, record
+
+        def _sample_footprint(self, fr, st, enabled, sample1, sample2, active):
+            """A direction from the footprint mixture:
+            (wo mirrored, ok, component, gap_ok, gap_pdf, gap_value)."""
+            texels, fp_probs, eps_c = st["texels"], st["fp_probs"], st["eps_c"]
+            # Split sample1: defensive cosine | the footprint's lobes; within the specular
+            # share, which of the four texels lends its tangent.
+            pick_def_cos = sample1 < eps_c
+            u = (sample1 - eps_c) / (1.0 - eps_c)
+            u_spec = (u - fp_probs[SHEEN]) / dr.select(fp_probs[SPECULAR_REFLECTION] > 0.0,
+                                                       fp_probs[SPECULAR_REFLECTION], 1.0)
+            quad = mi.UInt32(dr.clip(dr.floor(u_spec * 4.0), 0, 3))
+            chosen = dict(texels[0])
+            for q in range(1, 4):
+                chosen["tangent"] = dr.select(quad == q, texels[q]["tangent"], chosen["tangent"])
+
+            wo, ok, component, gap_ok = self._sample_point(chosen, fp_probs, enabled, u, sample2, active)
             wo_cos = mi.warp.square_to_cosine_hemisphere(sample2)
             # The defensive cosine side: the lower or upper half of its sample1 slice.
-            lower = (sample1 - eps_d) < 0.5 * eps_c
+            lower = sample1 < 0.5 * eps_c
             wo_cos.z = dr.select(lower, -wo_cos.z, wo_cos.z)
             wo = dr.select(pick_def_cos, wo_cos, wo)
             viewer_ok = active & (fr["wi"].z > spongecake.COS_EPSILON)
-            ok = dr.select(pick_def_cos, viewer_ok, ok & _not(pick_def_gap))
+            ok = dr.select(pick_def_cos, viewer_ok, ok)
             component = dr.select(pick_def_cos, dr.select(lower, DIFFUSE_TRANSMISSION, DIFFUSE_REFLECTION),
                                   component)
-            gap_ok = (gap_ok & _not(pick_def_cos)) | (pick_def_gap & viewer_ok)
-            mean_gap = 0.25 * (tex_probs[0][GAP] + tex_probs[1][GAP] + tex_probs[2][GAP] + tex_probs[3][GAP])
-            gap_pdf = dr.select(use, eps_d + m_tex * mean_gap, probs[GAP])
-            gap_value = pt["t_sheen_i"] * pt["t_sheen_i"] * dr.select(use, 1.0 - st["yarn_mean"], 1.0 - pt["yarn"])
+            gap_ok &= _not(pick_def_cos)
+            gap_pdf = (1.0 - eps_c) * fp_probs[GAP]
+            gap_value = fr["t_sheen_i"] * fr["t_sheen_i"] * (1.0 - st["yarn_mean"])
             return wo, ok, component, gap_ok, gap_pdf, gap_value
 
-        def _sample_record(self, si, fr, enabled, pt, probs, st, sample1, sample2, active):
-            wo, ok, component, gap_ok, gap_pdf, gap_value = self._sample_at(
-                enabled, fr, pt, probs, st, sample1, sample2, active)
-            value, pdf = self._eval_pdf_at(enabled, fr, pt, probs, st, wo)
+        def _sample_record(self, si, fr, eval_pdf, wo, ok, component, gap_ok, gap_pdf, gap_value):
+            """(wo in the world's local frame, pdf, component, weight) of a sampled
+            mirrored direction, or of the gap."""
+            value, pdf = eval_pdf(wo)
             ok &= pdf > 0.0
             weight = dr.select(ok, value / dr.select(ok, pdf, 1.0), 0.0)
             gap_ok &= gap_pdf > 0.0
             gap_weight = gap_value / dr.select(gap_ok, gap_pdf, 1.0)
+            return (dr.select(gap_ok, -si.wi, self._mirror(fr, wo)),
+                    dr.select(gap_ok, gap_pdf, dr.select(ok, pdf, 0.0)),
+                    dr.select(gap_ok, mi.UInt32(GAP), component),
+                    dr.select(gap_ok, mi.Color3f(gap_weight), weight))
 
+        def _bsdf_sample(self, record):
+            """(BSDFSample3f, weight) of a sample record. Built after the branches: values
+            that are the same literal in both branches of a symbolic if (eta = 1) trip
+            Dr.Jit's LLVM code generation inside virtual calls."""
+            wo, pdf, component, weight = record
             bs = dr.zeros(mi.BSDFSample3f)
-            bs.wo = dr.select(gap_ok, -si.wi, self._mirror(fr, wo))
-            bs.pdf = dr.select(gap_ok, gap_pdf, dr.select(ok, pdf, 0.0))
+            bs.wo = wo
+            bs.pdf = pdf
             bs.eta = 1.0
-            bs.sampled_component = dr.select(gap_ok, mi.UInt32(GAP), component)
+            bs.sampled_component = component
             type_of = [mi.UInt32(+f) for f in lobe_types]
             sampled_type = type_of[SHEEN]
             for c in range(1, 6):
-                sampled_type = dr.select(bs.sampled_component == c, type_of[c], sampled_type)
+                sampled_type = dr.select(component == c, type_of[c], sampled_type)
             bs.sampled_type = sampled_type
-            weight = dr.select(gap_ok, mi.Color3f(gap_weight), weight)
             return bs, weight
+
+        def _shade(self, ctx, si, wos, samples, active):
+            """eval_pdf at the world-frame directions ``wos`` and, if ``samples`` =
+            (sample1, sample2) is given, one sample: ([values], [pdfs], (bs, weight) or ()).
+
+            Footprints of a texel or more take the multi-scale branch, smaller ones the
+            fibre-level one; a symbolic if, so a packet of lanes that all take one branch
+            skips the other's work."""
+            enabled = self._enabled(ctx)
+            fr = self._frame(si, active)
+            wos = [self._mirror(fr, wo) for wo in wos]
+            if not self.multiscale:
+                values, pdfs, record = self._point_branch(si, fr, enabled, wos, samples, active)
+            else:
+                use = self._footprint(si, fr)["use"]
+                values, pdfs, record = dr.if_stmt(
+                    args=(), cond=use,
+                    true_fn=lambda: self._footprint_branch(si, fr, enabled, wos, samples, active),
+                    false_fn=lambda: self._point_branch(si, fr, enabled, wos, samples, active),
+                    label="cloth_footprint")
+            values = [dr.select(active, v, 0.0) for v in values]
+            pdfs = [dr.select(active, p, 0.0) for p in pdfs]
+            return values, pdfs, (self._bsdf_sample(record) if record else ())
 
         # ------------------------------------------------------------------
         # mi.BSDF interface
         # ------------------------------------------------------------------
         def sample(self, ctx, si, sample1, sample2, active=True):
-            enabled, fr, pt, probs, st = self._prepare(ctx, si, active)
-            return self._sample_record(si, fr, enabled, pt, probs, st, sample1, sample2, active)
+            return self._shade(ctx, si, [], (sample1, sample2), active)[2]
 
         def eval_pdf(self, ctx, si, wo, active=True):
-            enabled, fr, pt, probs, st = self._prepare(ctx, si, active)
-            value, pdf = self._eval_pdf_at(enabled, fr, pt, probs, st, self._mirror(fr, wo))
-            return dr.select(active, value, 0.0), dr.select(active, pdf, 0.0)
+            values, pdfs, _ = self._shade(ctx, si, [wo], None, active)
+            return values[0], pdfs[0]
 
         def eval(self, ctx, si, wo, active=True):
             return self.eval_pdf(ctx, si, wo, active)[0]
@@ -715,13 +783,7 @@ def make_cloth_class():
             """eval_pdf at every direction of ``wos`` and one sample, sharing one footprint
             state (SAT means, visibilities, the sampling mixture: all independent of the
             outgoing direction). Called by ``clothpath`` through ``dr.dispatch``."""
-            enabled, fr, pt, probs, st = self._prepare(ctx, si, active)
-            values, pdfs = [], []
-            for wo in wos:
-                value, pdf = self._eval_pdf_at(enabled, fr, pt, probs, st, self._mirror(fr, wo))
-                values.append(dr.select(active, value, 0.0))
-                pdfs.append(dr.select(active, pdf, 0.0))
-            bs, weight = self._sample_record(si, fr, enabled, pt, probs, st, sample1, sample2, active)
+            values, pdfs, (bs, weight) = self._shade(ctx, si, wos, (sample1, sample2), active)
             return values, pdfs, bs, weight
 
         def eval_pdf_sample(self, ctx, si, wo, sample1, sample2, active=True):
