@@ -545,3 +545,85 @@ def test_scalar_variant_matches_path():
     worst = float(out.stdout.split("WORST")[1].split()[0])
     assert worst <= 1e-4, worst
     assert float(out.stdout.split("ALL")[1]) <= 5.0
+
+
+# ----------------------------------------------------------------------------------------
+# Pixel-centred footprints at the first hit
+# ----------------------------------------------------------------------------------------
+
+def test_pixel_centre_offset_recovers_the_film_position():
+    """The offset of a camera sample from its pixel centre, from the point it sees."""
+    sensor = mi.load_dict({"type": "perspective", "fov": 50,
+                           "to_world": mi.ScalarTransform4f().look_at(origin=[0.3, 1, 4], target=[0, 0.5, 0],
+                                                                      up=[0, 1, 0]),
+                           "film": {"type": "hdrfilm", "width": 16, "height": 9, "rfilter": {"type": "box"}}})
+    rng = np.random.default_rng(4)
+    n = 1000
+    px, py = rng.integers(0, 16, n), rng.integers(0, 9, n)
+    fx, fy = rng.uniform(0.02, 0.98, n), rng.uniform(0.02, 0.98, n)
+    pos = mi.Point2f((px + fx) / 16.0, (py + fy) / 9.0)
+    ray, _ = sensor.sample_ray_differential(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
+    p = ray.o + ray.d * mi.Float(rng.uniform(0.5, 20.0, n))
+    ox, oy, ok = fp.pixel_centre_offset(sensor, p)
+    assert np.all(np.array(ok))
+    np.testing.assert_allclose(np.array(ox), fx - 0.5, atol=2e-4)
+    np.testing.assert_allclose(np.array(oy), fy - 0.5, atol=2e-4)
+    # Outside the frustum: not valid.
+    _, _, ok = fp.pixel_centre_offset(sensor, ray.o - ray.d)
+    assert not np.any(np.array(ok))
+
+
+def test_footprint_bsdfs_see_the_pixel_centre_at_the_first_hit():
+    """A BSDF with eval_pdf_sample_n and footprint_shading gets the uv of the pixel centre at
+    the first hit: every sample of a pixel reports the same uv, the centre's."""
+    seen = {}
+
+    class Probe(mi.BSDF):
+        footprint_shading = True
+
+        def __init__(self, props):
+            mi.BSDF.__init__(self, props)
+            self.m_flags = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
+            self.m_components = [self.m_flags]
+
+        def eval_pdf_sample_n(self, ctx, si, wos, s1, s2, active=True):
+            bs = dr.zeros(mi.BSDFSample3f)
+            bs.wo = mi.Vector3f(0, 0, 1)
+            bs.pdf = 0.0  # end the path here
+            colour = mi.Color3f(si.uv.x, si.uv.y, 0.0)
+            return [colour for _ in wos], [mi.Float(0.0) for _ in wos], bs, mi.Color3f(0.0)
+
+        def sample(self, ctx, si, s1, s2, active=True):
+            return dr.zeros(mi.BSDFSample3f), mi.Color3f(0.0)
+
+        def eval(self, ctx, si, wo, active=True):
+            return mi.Color3f(0.0)
+
+        def pdf(self, ctx, si, wo, active=True):
+            return mi.Float(0.0)
+
+        def eval_pdf(self, ctx, si, wo, active=True):
+            return mi.Color3f(0.0), mi.Float(0.0)
+
+    mi.register_bsdf("uv_probe", lambda props: Probe(props))
+    scene = {"type": "scene", "integrator": {"type": "clothpath", "max_depth": 2},
+             "sensor": {"type": "perspective", "fov": 30,
+                        "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 3], target=[0, 0, 0], up=[0, 1, 0]),
+                        "film": {"type": "hdrfilm", "width": 8, "height": 8, "rfilter": {"type": "box"}},
+                        "sampler": {"type": "independent"}},
+             "plane": {"type": "rectangle", "bsdf": {"type": "uv_probe"}},
+             # Radiance 1 from the camera's side: the emitter sample returns the probe's value.
+             "light": {"type": "directional", "direction": [0, 0, -1], "irradiance": 1.0}}
+    # The probe's eval (= uv) weighted by the emitter sample: each pixel's mean is its uv.
+    ours = render(mi.load_dict(scene), 64, seed=1)
+    # Reference: the uv of each pixel centre, by rendering with the same camera through
+    # 1 spp at the pixel centres is not possible, so compare with the plane's analytic uv.
+    t = np.tan(np.radians(15.0)) * 3.0  # half-width of the view at the plane
+    centres = (np.arange(8) + 0.5) / 8.0
+    u = 0.5 + (centres - 0.5) * t  # rectangle: uv = (x + 1) / 2 over [-1, 1]
+    v = 0.5 + (0.5 - centres) * t
+    np.testing.assert_allclose(ours[..., 0], np.broadcast_to(u[None, :], (8, 8)), atol=2e-4)
+    np.testing.assert_allclose(ours[..., 1], np.broadcast_to(v[:, None], (8, 8)), atol=2e-4)
+    # No spread between the samples of a pixel: the variance across seeds vanishes.
+    other = render(mi.load_dict(scene), 1, seed=5)
+    np.testing.assert_allclose(other[..., :2], ours[..., :2], atol=2e-4)

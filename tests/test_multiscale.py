@@ -65,6 +65,7 @@ def test_footprint_matches_brute_force(visibility, half, dirs):
 
 
 def test_sub_texel_footprint_is_the_fibre_level_bsdf():
+    """Footprints under a texel: the fibre-level BSDF at a point drawn in the footprint."""
     bsdf = mi.load_dict(BASE)
     point = mi.load_dict(dict(BASE, multiscale=False))
     rng = np.random.default_rng(3)
@@ -76,6 +77,15 @@ def test_sub_texel_footprint_is_the_fibre_level_bsdf():
     si.duv_dx = mi.Vector2f(0.3 / N_TEXELS, 0.0)
     si.duv_dy = mi.Vector2f(0.0, 0.2 / N_TEXELS)
     ctx = mi.BSDFContext()
+    a = np.array(bsdf.eval(ctx, si, mi.Vector3f(*wo.T)))
+    # The fibre-level BSDF at the point the footprint BSDF drew in the footprint.
+    xi = np.array(bsdf._hash4(si)[0])
+    uv_drawn = uv + (2.0 * xi.T - 1.0) * np.array([0.15, 0.1]) / N_TEXELS
+    b = np.array(point.eval(ctx, make_si(mi.Vector3f(*wi.T), mi.Point2f(*uv_drawn.T), n), mi.Vector3f(*wo.T)))
+    np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
+    # A zero footprint is the fibre-level BSDF at si.uv itself, bit for bit.
+    si.duv_dx = mi.Vector2f(0.0, 0.0)
+    si.duv_dy = mi.Vector2f(0.0, 0.0)
     a = np.array(bsdf.eval(ctx, si, mi.Vector3f(*wo.T)))
     b = np.array(point.eval(ctx, make_si(mi.Vector3f(*wi.T), mi.Point2f(*uv.T), n), mi.Vector3f(*wo.T)))
     np.testing.assert_array_equal(a, b)

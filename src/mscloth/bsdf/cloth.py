@@ -194,6 +194,8 @@ def make_cloth_class():
             self.textures = p.textures
             self._upload_maps(self.maps)
             self.multiscale = p.multiscale
+            # Read by clothpath: footprints are shaded whole, so centre them on the pixel.
+            self.footprint_shading = p.multiscale
             self.use_visibility = p.visibility
             self.use_parallax = p.parallax
             self.footprint_data = None
@@ -272,16 +274,22 @@ def make_cloth_class():
 
             Convention: the footprint is the axis-aligned UV rectangle centred on si.uv
             with half-widths 1/2(|du/dx| + |du/dy|) and 1/2(|dv/dx| + |dv/dy|). Footprints
-            whose half-widths are both <= 1/2 texel are shaded as the texel (fibre level);
-            larger ones are at least one texel wide in each direction.
+            whose half-widths are both <= 1/2 texel are shaded fibre level, at a point
+            drawn uniformly in the footprint (``sub_x``, ``sub_y``: their half-widths; zero
+            for a zero footprint, which is exactly the fibre-level BSDF at si.uv); larger
+            ones are at least one texel wide in each direction.
             """
             rx = 0.5 * (dr.abs(si.duv_dx.x) + dr.abs(si.duv_dy.x)) * self.uv_scale * self.tile_w
             ry = 0.5 * (dr.abs(si.duv_dx.y) + dr.abs(si.duv_dy.y)) * self.uv_scale_v * self.tile_h
             use = (dr.maximum(rx, ry) > 0.5) & dr.isfinite(rx) & dr.isfinite(ry)
+            finite = dr.isfinite(rx) & dr.isfinite(ry)
+            # Sub-texel half-widths, for the fibre-level branch's position in the footprint.
+            sub_x = dr.select(use | _not(finite), 0.0, rx)
+            sub_y = dr.select(use | _not(finite), 0.0, ry)
             rx = dr.select(use, dr.maximum(rx, 0.5), 0.5)
             ry = dr.select(use, dr.maximum(ry, 0.5), 0.5)
             return dict(use=use, x0=fr["x"] - rx, x1=fr["x"] + rx, y0=fr["y"] - ry, y1=fr["y"] + ry,
-                        area=4.0 * rx * ry, rx=rx, ry=ry)
+                        area=4.0 * rx * ry, rx=rx, ry=ry, sub_x=sub_x, sub_y=sub_y)
 
         def _enabled(self, ctx):
             return [ctx.is_enabled(lobe_types[c], c) for c in range(6)]
@@ -592,14 +600,16 @@ def make_cloth_class():
             return dr.select(valid, (1.0 - eps_c) * pdf + eps_c * 0.5 * cosine, 0.0)
 
         def _hash4(self, si):
-            """Four deterministic pseudo-random numbers per uv (two 2D points): the CCV
-            residual texel and the SAT rounding in eval(), where Mitsuba passes no random
-            numbers."""
+            """Four deterministic pseudo-random numbers per shading point (two 2D points,
+            from si.uv and si.p): the stratified texels and the SAT rounding of the
+            footprint, or the point in a sub-texel footprint, in eval(), where Mitsuba
+            passes no random numbers. si.p varies between the samples of one pixel, whose
+            footprints ``clothpath`` centres on the same uv."""
             def bits(x):  # 24 well-mixed bits of a float's fractional part
                 return mi.UInt32((x - dr.floor(x)) * 16777216.0)
 
-            a = bits(si.uv.x * 997.0 + si.uv.y * 31.0)
-            b = bits(si.uv.y * 991.0 + si.uv.x * 37.0)
+            a = bits(si.uv.x * 997.0 + si.uv.y * 31.0 + si.p.x * 1.618 + si.p.z * 0.577)
+            b = bits(si.uv.y * 991.0 + si.uv.x * 37.0 + si.p.y * 1.414 + si.p.z * 0.318)
             v0, v1 = mi.sample_tea_32(a, b)
             v2, v3 = mi.sample_tea_32(v0, v1)
             scale = 1.0 / 16777216.0
@@ -650,10 +660,16 @@ def make_cloth_class():
         # ------------------------------------------------------------------
         # Shared by the mi.BSDF methods
         # ------------------------------------------------------------------
-        def _point_branch(self, si, fr, enabled, wos, samples, active):
+        def _point_branch(self, si, fr, enabled, wos, samples, active, fp=None):
             """(values, pdfs, sample record) of the fibre-level BSDF at the texel under
-            si.uv, for the mirrored directions ``wos`` and, if given, one sample."""
-            pt = self._texel(fr, fr["x"], fr["y"])
+            si.uv (or, for a sub-texel footprint ``fp``, under a point drawn uniformly in
+            it), for the mirrored directions ``wos`` and, if given, one sample."""
+            x, y = fr["x"], fr["y"]
+            if fp is not None:
+                xi, _ = self._hash4(si)
+                x = x + (2.0 * xi.x - 1.0) * fp["sub_x"]
+                y = y + (2.0 * xi.y - 1.0) * fp["sub_y"]
+            pt = self._texel(fr, x, y)
             probs = self._lobe_probabilities(pt, enabled)
 
             def eval_pdf(wo):
@@ -753,11 +769,11 @@ def make_cloth_class():
             if not self.multiscale:
                 values, pdfs, record = self._point_branch(si, fr, enabled, wos, samples, active)
             else:
-                use = self._footprint(si, fr)["use"]
+                fp = self._footprint(si, fr)
                 values, pdfs, record = dr.if_stmt(
-                    args=(), cond=use,
+                    args=(), cond=fp["use"],
                     true_fn=lambda: self._footprint_branch(si, fr, enabled, wos, samples, active),
-                    false_fn=lambda: self._point_branch(si, fr, enabled, wos, samples, active),
+                    false_fn=lambda: self._point_branch(si, fr, enabled, wos, samples, active, fp),
                     label="cloth_footprint")
             values = [dr.select(active, v, 0.0) for v in values]
             pdfs = [dr.select(active, p, 0.0) for p in pdfs]

@@ -91,14 +91,17 @@ def mis_weight(pdf_a, pdf_b):
     return dr.detach(dr.select(dr.isfinite(w), w, 0.0))
 
 
-def eval_pdf_sample_n(bsdf, ctx, si, wos, sample1, sample2, active=True):
+def eval_pdf_sample_n(bsdf, ctx, si, si_centred, wos, sample1, sample2, active=True):
     """eval_pdf at each direction of ``wos`` and one sample: ([values], [pdfs], bs, weight).
 
     BSDFs with their own ``eval_pdf_sample_n`` (``cloth``) share the work of one shading
-    point between all directions; others get eval_pdf / sample calls (one direction:
+    point between all directions; those that shade whole footprints (``footprint_shading``
+    true: multi-scale ``cloth``) see ``si_centred`` (uv at the pixel centre on first hits,
+    see :mod:`.footprint`). Others get eval_pdf / sample calls on ``si`` (one direction:
     eval_pdf_sample, exactly as ``path``)."""
     if hasattr(bsdf, "eval_pdf_sample_n"):
-        return bsdf.eval_pdf_sample_n(ctx, si, wos, sample1, sample2, active)
+        si_bsdf = si_centred if getattr(bsdf, "footprint_shading", False) else si
+        return bsdf.eval_pdf_sample_n(ctx, si_bsdf, wos, sample1, sample2, active)
     if len(wos) == 1:
         value, pdf, bs, weight = bsdf.eval_pdf_sample(ctx, si, wos[0], sample1, sample2, active)
         return [value], [pdf], bs, weight
@@ -172,6 +175,17 @@ def make_clothpath_class():
             o_x, d_x, o_y, d_y = ray_d.o_x, ray_d.d_x, ray_d.o_y, ray_d.d_y  # loop-invariant
             emitters = list(scene.emitters())
             all_emitters = self.emitter_sampling == "all" and len(emitters) > 1
+            # The perspective camera these rays come from (their lines pass through its
+            # centre of projection; ray origins sit on the near plane), for pixel centres.
+            camera, from_camera = None, False
+            if has_diff:
+                for sensor in scene.sensors():
+                    if sensor.class_name() == "PerspectiveCamera":
+                        origin = mi.Point3f(sensor.world_transform().translation())
+                        miss = dr.norm(dr.cross(origin - ray_d.o, dr.normalize(ray_d.d)))
+                        camera = sensor
+                        from_camera = miss <= 1e-5 * (1.0 + dr.norm(origin))
+                        break
 
             ray = mi.Ray3f(ray_d)
             pi = scene.ray_intersect_preliminary(ray, coherent=True, active=active)
@@ -264,12 +278,19 @@ def make_clothpath_class():
                 sample_1 = sampler.next_1d()
                 sample_2 = sampler.next_2d()
                 wos = [e[3] for e in em_samples]
+                si_centred = si
+                if camera is not None:
+                    # Footprint-aware BSDFs see the pixel centre's uv at the first hit.
+                    si_centred = mi.SurfaceInteraction3f(si)
+                    ox, oy, centre_ok = fp.pixel_centre_offset(camera, si.p, first & from_camera & si.is_valid())
+                    centre = fp.centred_uv(si.uv, si.duv_dx, si.duv_dy, ox, oy)
+                    si_centred.uv = dr.select(centre_ok, centre, si.uv)
                 if jit:
                     bsdf_vals, bsdf_pdfs, bsdf_sample, bsdf_weight = dr.dispatch(
-                        bsdf, eval_pdf_sample_n, bsdf_ctx, si, wos, sample_1, sample_2)
+                        bsdf, eval_pdf_sample_n, bsdf_ctx, si, si_centred, wos, sample_1, sample_2)
                 else:
                     bsdf_vals, bsdf_pdfs, bsdf_sample, bsdf_weight = eval_pdf_sample_n(
-                        bsdf, bsdf_ctx, si, wos, sample_1, sample_2)
+                        bsdf, bsdf_ctx, si, si_centred, wos, sample_1, sample_2)
 
                 # ---------------- Emitter sampling contribution ---------------
                 for (ds, em_weight, em_active, wo), bsdf_val, bsdf_pdf in zip(em_samples, bsdf_vals, bsdf_pdfs):

@@ -24,6 +24,16 @@ the sample count. :func:`differential_footprint` intersects the offset rays with
 plane and solves for the UV partials like ``SurfaceInteraction3f.compute_uv_partials``, but
 robustly (:func:`world_to_uv`).
 
+Centring on the pixel (first hit)
+---------------------------------
+A camera sample lies somewhere inside its pixel. A footprint centred on the sample's own uv
+would make the image the pixel box filtered twice (a tent two pixels wide), blurrier than
+brute-force supersampling, and would keep the texture noise of where the sample fell. At
+the first hit ``clothpath`` therefore hands footprint-aware BSDFs (those with
+``eval_pdf_sample_n``, i.e. ``cloth``) the uv of the pixel centre: the sample's uv moved by
+``-(duv_dx * ox + duv_dy * oy)`` with ``(ox, oy)`` its offset from the pixel centre in pixels
+(:func:`pixel_centre_offset`, perspective cameras; other sensors keep the sample's uv).
+
 Later hits: ray cones
 ---------------------
 After the first hit the path carries a cone (Akenine-Moller et al. 2019, "Texture level of
@@ -232,3 +242,23 @@ def half_widths(duv_dx, duv_dy):
     """Footprint half-widths (h_u, h_v) = 1/2 (|du/dx| + |du/dy|), 1/2 (|dv/dx| + |dv/dy|)."""
     return (0.5 * (dr.abs(duv_dx.x) + dr.abs(duv_dy.x)),
             0.5 * (dr.abs(duv_dx.y) + dr.abs(duv_dy.y)))
+
+
+def pixel_centre_offset(sensor, p, active=True):
+    """(ox, oy, valid): the offset in pixels, each in [-1/2, 1/2), of the film position at
+    which ``sensor`` (a perspective camera) sees the point ``p`` from its pixel's centre.
+
+    Uses the camera's own projection (``Sensor.sample_direction`` returns raster
+    coordinates in ``uv``); ``valid`` is false outside the frustum."""
+    it = dr.zeros(mi.Interaction3f, dr.width(p))
+    it.p = p
+    ds, _ = sensor.sample_direction(it, mi.Point2f(0.5, 0.5), active)
+    fx = ds.uv.x - dr.floor(ds.uv.x)
+    fy = ds.uv.y - dr.floor(ds.uv.y)
+    valid = active & (ds.pdf > 0.0) & dr.isfinite(ds.uv.x) & dr.isfinite(ds.uv.y)
+    return fx - 0.5, fy - 0.5, valid
+
+
+def centred_uv(uv, duv_dx, duv_dy, ox, oy):
+    """uv of the pixel centre from a sample's uv and its offset (ox, oy) in pixels."""
+    return uv - duv_dx * ox - duv_dy * oy
