@@ -24,7 +24,9 @@ or converges to it (``all``, the default, which has less noise where several emi
 the scene).
 
 * first hit: the camera's ray differentials, rescaled to the whole pixel (Mitsuba scales
-  them by 1/sqrt(spp)), intersected with the tangent plane;
+  them by 1/sqrt(spp)), intersected with the tangent plane; BSDFs that shade whole
+  footprints (``footprint_shading``: multi-scale ``cloth``) get the uv of the pixel centre
+  (perspective cameras), so a pixel is its footprint's average;
 * later hits: a ray cone whose width grows with distance and whose spread grows at each
   non-delta bounce by 2/sqrt(pi pdf) (see :mod:`mscloth.integrators.footprint`).
 
