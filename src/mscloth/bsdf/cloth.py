@@ -792,6 +792,22 @@ def make_cloth_class():
         def eval(self, ctx, si, wo, active=True):
             return self.eval_pdf(ctx, si, wo, active)[0]
 
+        def gap_transmission(self, si, active=True):
+            """Fraction of light crossing the cloth straight along -si.wi through its gaps:
+            T_sheen(i)^2 (1 - I), with I the yarn coverage of the footprint in
+            si.duv_dx/dy (multi-scale) or of the texel (used by clothpath's shadow rays)."""
+            fr = self._frame(si, active)
+            pt = self._texel(fr, fr["x"], fr["y"])
+            yarn = pt["yarn"]
+            if self.multiscale:
+                fp = self._footprint(si, fr)
+                sats = self.footprint_data.scalar_sats
+                q = sats.query(fp["x0"], fp["y0"], fp["x1"], fp["y1"])
+                yarn = dr.select(fp["use"], sats.integral(q, self.footprint_data.GAP) / fp["area"], yarn)
+            t_sheen = fr["t_sheen_i"]
+            return dr.select(active & (dr.abs(si.wi.z) > spongecake.COS_EPSILON),
+                             t_sheen * t_sheen * dr.clip(1.0 - yarn, 0.0, 1.0), 0.0)
+
         def pdf(self, ctx, si, wo, active=True):
             return self.eval_pdf(ctx, si, wo, active)[1]
 

@@ -9,6 +9,7 @@ import drjit as dr
 import mitsuba as mi
 
 from . import footprint as fp
+from . import gap_shadows
 
 DOCSTRING = r"""
 Path tracer with pixel footprints (``clothpath``)
@@ -62,9 +63,9 @@ centred on ``si.uv`` with half-widths 1/2 (|du/dx| + |du/dy|) and 1/2 (|dv/dx| +
 
 AOVs ``footprint_u`` and ``footprint_v``: the footprint half-widths in UV at the first hit
 (0 where the camera ray escapes), e.g. ``footprint_u`` = 1/(2N) for a UV square seen
-head-on across N pixels. Not done: shadow rays do not see through cloth gaps (a gap is a
-delta-transmission lobe, which emitter sampling cannot use; paths through gaps are still
-found by BSDF sampling).
+head-on across N pixels. Shadow rays towards delta emitters (a sun) cross cloth through
+its gaps (:mod:`mscloth.integrators.gap_shadows`); other emitters are reached through gaps
+by BSDF sampling.
 """
 
 _UINT32_MAX = 0xFFFFFFFF
@@ -168,6 +169,25 @@ def make_clothpath_class():
             return self._trace(scene, sampler, ray_d, has_diff, mi.Float(width0),
                                mi.Float(spread0), mi.Bool(active))
 
+        @staticmethod
+        def _visible(scene, si, ds, em_weight, active, gaps, cone_width, cone_spread):
+            """(ds, weight, active, local direction) of an emitter sample after its shadow
+            ray: opaque occluders block it; with ``gaps``, delta emitters are seen through
+            the gaps of cloth (see :mod:`.gap_shadows`)."""
+            jit = dr.is_jit_v(mi.Float)
+            active = active & (ds.pdf != 0.0)
+            if jit or active:
+                if gaps:
+                    through = gap_shadows.shadow_transmittance(scene, si, ds.p, cone_width, cone_spread,
+                                                               active & ds.delta)
+                    opaque = active & _not(ds.delta)
+                    occluded = scene.ray_test(si.spawn_ray_to(ds.p), opaque) if (jit or opaque) else False
+                    em_weight = em_weight * dr.select(ds.delta, through, 1.0)
+                    active &= dr.select(ds.delta, through > 0.0, _not(occluded))
+                else:
+                    active &= _not(scene.ray_test(si.spawn_ray_to(ds.p), active))
+            return ds, em_weight, active, si.to_local(ds.d)
+
         def _trace(self, scene, sampler, ray_d, has_diff, width0, spread0, active):
             jit = dr.is_jit_v(mi.Float)
             bsdf_ctx = mi.BSDFContext()
@@ -177,6 +197,7 @@ def make_clothpath_class():
             o_x, d_x, o_y, d_y = ray_d.o_x, ray_d.d_x, ray_d.o_y, ray_d.d_y  # loop-invariant
             emitters = list(scene.emitters())
             all_emitters = self.emitter_sampling == "all" and len(emitters) > 1
+            gaps = gap_shadows.has_gap_transmission(scene)
             # The perspective camera these rays come from (their lines pass through its
             # centre of projection; ray origins sit on the near plane), for pixel centres.
             camera, from_camera = None, False
@@ -264,15 +285,14 @@ def make_clothpath_class():
                     if all_emitters:
                         for emitter in emitters:
                             ds, em_weight = emitter.sample_direction(si, sampler.next_2d(), active_em)
-                            em_active = active_em & (ds.pdf != 0.0)
-                            if jit or em_active:
-                                occluded = scene.ray_test(si.spawn_ray_to(ds.p), em_active)
-                                em_active &= _not(occluded)
-                            em_samples.append((ds, em_weight, em_active, si.to_local(ds.d)))
+                            em_samples.append(self._visible(scene, si, ds, em_weight, active_em, gaps,
+                                                            w_hit, cone_spread))
                     else:
-                        ds, em_weight = scene.sample_emitter_direction(si, sampler.next_2d(), True,
+                        # Visibility as Mitsuba tests it, plus gaps for delta emitters.
+                        ds, em_weight = scene.sample_emitter_direction(si, sampler.next_2d(), False,
                                                                        active_em)
-                        em_samples.append((ds, em_weight, active_em & (ds.pdf != 0.0), si.to_local(ds.d)))
+                        em_samples.append(self._visible(scene, si, ds, em_weight, active_em, gaps,
+                                                        w_hit, cone_spread))
                 if not em_samples:
                     em_samples.append((None, None, False, mi.Vector3f(0.0)))
 
