@@ -175,3 +175,21 @@ def test_parallax_shifts_the_lookup_to_the_table_offset():
     np.testing.assert_allclose(np.array(shifted.eval(ctx, at, wo)), np.array(plain_bsdf.eval(ctx, moved, wo)),
                                rtol=1e-5)
     assert not np.allclose(np.array(shifted.eval(ctx, at, wo)), np.array(plain_bsdf.eval(ctx, at, wo)))
+
+
+@pytest.mark.parametrize("half", [2.0, 16.0])
+def test_rank_compressed_directional_sat_matches_brute_force(half):
+    """direction_rank = 64: the compressed table's footprint eval against brute force, with
+    the same tolerance as the full table's."""
+    params = dict(BASE, direction_rank=64)
+    bsdf = mi.load_dict(params)
+    assert bsdf.footprint_data.d_rank == 64
+    wi, wo = DIRECTIONS[1]
+    ms, ms_err, _ = multiscale_expectation(bsdf, [0.3, 0.55], half, wi, wo)
+    bf, bf_err = brute_force(params, [0.3, 0.55], half, wi, wo)
+    assert abs(ms - bf) <= 5.0 * np.hypot(ms_err, bf_err) + APPROXIMATION * abs(bf), (ms, bf)
+
+
+def test_direction_rank_must_fit_the_bins():
+    with pytest.raises(Exception, match="direction_rank"):
+        mi.load_dict(dict(BASE, direction_bins=4, direction_rank=17))

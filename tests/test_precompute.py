@@ -599,6 +599,41 @@ def test_d_footprint_mean_interpolates_bins(tables_sq):
                                0.5 * (vals[2 * n + 3] + vals[2 * n + 4]), rtol=1e-9)
 
 
+@pytest.fixture(scope="module")
+def maps_twill():
+    return woven_maps(twill(2, 1), 96)
+
+
+@pytest.mark.parametrize("rank", [24, 48])
+def test_rank_k_directional_sat(maps_twill, rank):
+    """The rank-K table: an orthonormal basis over the bins, K coefficient channels, and
+    footprint means of D (any rectangle, any half vector) close to the full table's; the
+    error shrinks with K. The per-cluster tables split the rank-K table exactly."""
+    full = build_tables(maps_twill, 0.3, dr=12, dv=2, clusters=3, progress=False)
+    low = build_tables(maps_twill, 0.3, dr=12, dv=2, clusters=3, per_cluster_sat=True, d_rank=rank,
+                       progress=False)
+    B = 12 * 12
+    assert low.d_basis.shape == (B, rank) and low.d_sat.shape == (rank, 97, 97)
+    np.testing.assert_allclose(low.d_basis.T.astype(np.float64) @ low.d_basis, np.eye(rank), atol=1e-5)
+    assert low.memory_report()["d_sat"] * B == full.memory_report()["d_sat"] * rank
+    rng = np.random.default_rng(3)
+    x0, y0 = rng.uniform(-50, 150, 200), rng.uniform(-50, 150, 200)
+    x1, y1 = x0 + rng.uniform(1, 60, 200), y0 + rng.uniform(1, 60, 200)
+    h = rng.normal(size=(200, 3))
+    ref = full.d_footprint_mean(h, x0, y0, x1, y1)
+    got = low.d_footprint_mean(h, x0, y0, x1, y1)
+    scale = np.max(full.d_mean)  # errors relative to the tile's brightest bin mean
+    err = np.max(np.abs(got - ref)) / scale
+    assert err < {24: 0.05, 48: 0.01}[rank], err
+    total = low.d_sat_cluster.sum(axis=0)
+    np.testing.assert_allclose(total, low.d_sat, atol=2e-3 * np.abs(low.d_sat).max())
+
+
+def test_rank_must_fit_the_bins(maps_sq):
+    with pytest.raises(ParameterError, match="d_rank"):
+        build_tables(maps_sq, 0.3, dr=4, d_rank=17, progress=False)
+
+
 def test_small_sats_equal_brute_force(tables_sq, maps_sq, tables_rect, maps_rect):
     for tables, maps in ((tables_sq, maps_sq), (tables_rect, maps_rect)):
         H, W = maps.resolution
@@ -737,9 +772,9 @@ def test_cache_key_changes_with_every_parameter(maps_sq, maps_rect, tmp_path):
     keys = {table_key(maps_sq, base), table_key(maps_rect, base)}
     for change in [dict(dr=5), dict(dv=3), dict(clusters=3), dict(per_cluster_sat=True),
                    dict(seed=1), dict(iters=7), dict(max_step=0.25), dict(vis_eps=1e-3),
-                   dict(fast_visibility=True)]:
+                   dict(fast_visibility=True), dict(d_rank=4)]:
         keys.add(table_key(maps_sq, tables_mod._params(0.3, **{**dict(dr=4, dv=2, clusters=2), **change})))
-    assert len(keys) == 11
+    assert len(keys) == 12
 
 
 def _corrupt_middle(path):

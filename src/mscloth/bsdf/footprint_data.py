@@ -39,10 +39,29 @@ class FootprintData:
             self.scalar_sats = ResidualSATs(np.concatenate([np.asarray(s).reshape(-1, self.H + 1, self.W + 1)
                                                             for s in sats]),
                                             np.concatenate([np.ravel(m) for m in means]))
+            # Rank-K compression: K coefficient channels and a (bins x K) basis.
+            basis = getattr(tables, "d_basis", None)
+            self.d_rank = 0 if basis is None else int(basis.shape[1])
+            if self.d_rank:
+                self.d_basis = flat_array(basis)
             if self.per_cluster:
-                k, b = self.clusters, self.dr * self.dr
+                k, b = self.clusters, self.d_sat.channels
                 self.d_sat_cluster = ResidualSATs(np.asarray(tables.d_sat_cluster).reshape(k * b, self.H + 1, self.W + 1),
                                                   np.ravel(tables.d_cluster_mean))
+
+    def direction_channels(self, bins, weights):
+        """[(channel, weight)] of the directional SAT whose weighted sum is the bilinear
+        mix of the four half-vector ``bins``: the bins themselves, or with a rank-K table
+        the K coefficient channels weighted by the bins' basis rows."""
+        if not self.d_rank:
+            return list(zip(bins, weights))
+        K = self.d_rank
+        coef = [mi.Float(0.0) for _ in range(K)]
+        for b, wt in zip(bins, weights):
+            row = b * K
+            for k in range(K):
+                coef[k] += wt * gather(self.d_basis, row + k)
+        return [(k, coef[k]) for k in range(K)]
 
     # Channel offsets inside scalar_sats.
     GAP, ALBEDO, MOMENTS = 0, 1, 4
@@ -52,6 +71,8 @@ class FootprintData:
         total = 4 * (len(self.visibility) + len(self.cluster_vis) + len(self.cluster_id))
         if self.with_sats:
             total += self.d_sat.nbytes() + self.scalar_sats.nbytes()
+            if self.d_rank:
+                total += 4 * len(self.d_basis)
             if self.per_cluster:
                 total += self.d_sat_cluster.nbytes()
         return total

@@ -40,6 +40,7 @@ INT_PARAMETERS = {
     "direction_bins": (16, 4, 64, "half-vector bins per side of the directional SAT (dr)"),
     "visibility_bins": (8, 2, 32, "direction bins per side of the visibility tables"),
     "clusters": (8, 1, 32, "visibility clusters for the control variates"),
+    "direction_rank": (0, 0, 4096, "rank of the compressed directional SAT (0: full, dr^2 channels)"),
 }
 BOOL_PARAMETERS = {
     "multiscale": (True, "shade whole pixel footprints (summed-area tables + CCV)"),
@@ -67,6 +68,7 @@ class ClothParameters:
     direction_bins: int = 16
     visibility_bins: int = 8
     clusters: int = 8
+    direction_rank: int = 0
 
 
 def _read_float(props, name):
@@ -172,5 +174,9 @@ def read_parameters(props) -> ClothParameters:
                                  f"[{low}, {high}], got {value!r}")
         switches[name] = value
 
+    bins = switches["direction_bins"] ** 2
+    if switches["direction_rank"] > bins:
+        raise ParameterError(f"cloth: parameter 'direction_rank' must be at most direction_bins^2 = {bins} "
+                             f"(0: the full directional SAT), got {switches['direction_rank']}")
     return ClothParameters(pattern=pattern, resolution=resolution or None, textures=textures,
                            **floats, **switches)

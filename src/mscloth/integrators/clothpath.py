@@ -178,12 +178,13 @@ def make_clothpath_class():
             active = active & (ds.pdf != 0.0)
             if jit or active:
                 if gaps:
+                    # A cheap any-hit test first; only occluded delta samples trace through.
+                    occluded = scene.ray_test(si.spawn_ray_to(ds.p), active)
+                    crossing = active & ds.delta & occluded
                     through = gap_shadows.shadow_transmittance(scene, si, ds.p, cone_width, cone_spread,
-                                                               active & ds.delta)
-                    opaque = active & _not(ds.delta)
-                    occluded = scene.ray_test(si.spawn_ray_to(ds.p), opaque) if (jit or opaque) else False
-                    em_weight = em_weight * dr.select(ds.delta, through, 1.0)
-                    active &= dr.select(ds.delta, through > 0.0, _not(occluded))
+                                                               crossing) if (jit or crossing) else 0.0
+                    em_weight = em_weight * dr.select(crossing, through, 1.0)
+                    active &= dr.select(crossing, through > 0.0, _not(occluded))
                 else:
                     active &= _not(scene.ray_test(si.spawn_ray_to(ds.p), active))
             return ds, em_weight, active, si.to_local(ds.d)
