@@ -420,13 +420,20 @@ def make_cloth_class():
             means over the footprint, the control-variate residual texel, the viewer-side
             visibilities and the sampling mixture.
 
-            ``xi`` (2D in [0,1)) places the residual texel and ``xi_round`` rounds the
-            directional SAT's corners; by default both are a hash of si.uv, so eval is a
+            ``xi`` (2D in [0,1)) places the residual texels and ``xi_round`` rounds the
+            SATs' corners; by default both are a hash of (si.uv, si.p), so eval is a
             deterministic function of (si, wo)."""
             fd = self.footprint_data
             sats = fd.scalar_sats
             fp = self._footprint(si, fr)
-            q = sats.query(fp["x0"], fp["y0"], fp["x1"], fp["y1"])
+            if xi is None:
+                xi, xi_round = self._hash4(si)
+            elif xi_round is None:
+                xi_round = mi.Point2f(0.5, 0.5)
+            # Every SAT of the footprint is read at corners rounded stochastically to whole
+            # texels (unbiased; one read per corner and channel instead of four: these reads
+            # dominate the cost). The exact area normalises, so means stay unbiased.
+            q = sats.query_rounded(fp["x0"], fp["y0"], fp["x1"], fp["y1"], xi_round.x, xi_round.y)
             inv_area = dr.rcp(fp["area"])
 
             def mean(channel):
@@ -447,14 +454,8 @@ def make_cloth_class():
                 st["moments"] = (m[0], m[1], sgn * m[2], m[3], sgn * m[4], m[5])
 
             # Four texels of the control-variate residual, one uniform in each quadrant of
-            # the footprint (stratified: a quarter of the variance of one texel or less),
-            # and the stochastic rounding of the directional SAT's corners (unbiased; one
-            # read per corner and bin instead of four: those reads dominate the cost).
-            if xi is None:
-                xi, xi_round = self._hash4(si)
-            elif xi_round is None:
-                xi_round = mi.Point2f(0.5, 0.5)
-            st["q_d"] = sats.query_rounded(fp["x0"], fp["y0"], fp["x1"], fp["y1"], xi_round.x, xi_round.y)
+            # the footprint (stratified: a quarter of the variance of one texel or less).
+            st["q_d"] = q
             st["texels"] = texels = self._stratified_texels(fr, fp, xi)
             if self.use_visibility:
                 st["cvis_i"] = cvis_i = fd.cluster_visibilities(fr["wi"], fr["flip"])
