@@ -104,6 +104,31 @@ def test_reciprocity(bsdf):
     np.testing.assert_allclose(f_io[keep], f_oi[keep], rtol=2e-3, atol=1e-6)
 
 
+@pytest.mark.parametrize("half_texels", [3.0, 40.0])
+def test_footprint_reciprocity(bsdf, half_texels):
+    """The footprint BSDF is reciprocal too: the same footprint (and so the same residual
+    texels and SAT rounding, which depend on uv and p only) with i and o swapped."""
+    rng = np.random.default_rng(4)
+    n = 50_000
+    wi, wo = random_directions(rng, n), random_directions(rng, n)
+    uv = pt2(random_uv(rng, n))
+    d = 2.0 * half_texels / bsdf.tile_w
+
+    def footprint_si(w):
+        si = make_si(vec(w), uv, n)
+        si.duv_dx = mi.Vector2f(d, 0.0)
+        si.duv_dy = mi.Vector2f(0.0, d)
+        return si
+
+    ctx = mi.BSDFContext()
+    f_io = np3(bsdf.eval(ctx, footprint_si(wi), vec(wo))) / np.abs(wo[:, 2:3])
+    f_oi = np3(bsdf.eval(ctx, footprint_si(wo), vec(wi))) / np.abs(wi[:, 2:3])
+    keep = (np.abs(wi[:, 2]) > 1e-2) & (np.abs(wo[:, 2]) > 1e-2)
+    assert np.count_nonzero(f_io[keep] != 0) > 0.5 * keep.sum()
+    scale = np.abs(f_io[keep]).max()
+    np.testing.assert_allclose(f_io[keep], f_oi[keep], rtol=2e-3, atol=1e-6 * scale)
+
+
 def hemispherical_albedo(bsdf, wi, uv, n, seed):
     """Mean sample weight per incident direction = directional albedo (delta lobe included)."""
     m = len(wi)

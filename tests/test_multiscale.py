@@ -16,10 +16,13 @@ BASE = {"type": "cloth", "pattern": "plain", "roughness": 0.4, "thickness": 1.5,
         "specular_albedo": 0.5, "specular_transmittance": 0.3, "diffuse_albedo": 0.3,
         "diffuse_transmittance": 0.1, "sheen_thickness": 0.3}
 
-DIRECTIONS = [  # (wi, wo): reflection near the specular cone, off-specular, transmission
+DIRECTIONS = [  # (wi, wo): reflection near the specular cone, off-specular, transmission,
+    # and the same seen from the back side (viewer below: the mirrored frame)
     ([0.3, 0.1, 0.95], [-0.4, 0.0, 0.92]),
     ([0.6, -0.2, 0.77], [-0.1, 0.7, 0.7]),
     ([0.2, 0.4, 0.89], [-0.3, -0.2, -0.93]),
+    ([0.6, -0.2, -0.77], [-0.1, 0.7, -0.7]),
+    ([0.2, 0.4, -0.89], [-0.3, -0.2, 0.93]),
 ]
 
 

@@ -41,7 +41,7 @@ def footprint_expectation(bsdf, uv, half_texels, tile_texels, wi, wo, n=20000, s
     xi = mi.Point2f(rng.random(n), rng.random(n))
     xi_round = mi.Point2f(rng.random(n), rng.random(n))
     st = bsdf._footprint_state(si, fr, enabled, xi, xi_round)
-    value = bsdf._eval_footprint(fr, st, mi.Vector3f(_unit(wo)), enabled)
+    value = bsdf._eval_footprint(fr, st, bsdf._mirror(fr, mi.Vector3f(_unit(wo))), enabled)
     v = np.array(value)[0]
     return float(v.mean()), float(v.std() / np.sqrt(n)), bool(np.array(st["fp"]["use"])[0])
 

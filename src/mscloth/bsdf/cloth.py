@@ -513,7 +513,11 @@ def make_cloth_class():
             if enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]:
                 h = dr.normalize(wi + wo)
                 h = dr.select(h.z < 0.0, -h, h)  # D is even
-                bins, weights = hemisphere_bins(h, fd.dr)
+                # The tables hold D of the maps' own tangents; the mirrored frame flips their
+                # z, so a viewer below looks up the mirror image of h (then folded up again).
+                h_table = mi.Vector3f(h.x, h.y, fr["sign"] * h.z)
+                h_table = dr.select(h_table.z < 0.0, -h_table, h_table)
+                bins, weights = hemisphere_bins(h_table, fd.dr)
                 # Channels of the directional SAT and their weights: the four bins, or
                 # for the rank-K table its K coefficients with the bins' basis rows.
                 channels = fd.direction_channels(bins, weights)
