@@ -93,9 +93,11 @@ def test_aovs_are_opt_in():
 
 def test_aov_names_and_channels():
     scene = load("cornell", "clothpath", {})
-    assert scene.integrator().aov_names() == ["footprint_u", "footprint_v"]
+    assert scene.integrator().aov_names() == ["footprint_u", "footprint_v", "footprint_texels_u",
+                                              "footprint_texels_v"]
     img = render(scene, 1, 0)
-    assert img.shape == (24, 24, 6)  # R, G, B, A, footprint_u, footprint_v
+    assert img.shape == (24, 24, 8)  # R, G, B, A, the four footprint AOVs
+    assert np.all(img[..., 6:] == 0.0)  # no footprint-shading BSDF in the Cornell box
 
 
 @pytest.mark.parametrize("name", list(SCENES))
@@ -676,3 +678,23 @@ def test_opaque_surfaces_still_block_the_sun():
     crossing is tested for gaps, and a diffuse BSDF has none)."""
     under, _ = _floor_under_cloth({"type": "diffuse"}, spp=4)
     assert under == 0.0
+
+
+def test_footprint_texels_aov_counts_the_cloth_texels():
+    """A cloth square seen head-on across N pixels, uv_scale s, tile of W texels: each pixel
+    spans s W / N texels (the AOV the README suggests for checking a scene's scale)."""
+    import mscloth
+
+    mscloth.register()
+    n, s_uv = 16, 3.0
+    cloth = {"type": "cloth", "pattern": "plain", "uv_scale": s_uv, "uv_scale_v": s_uv}
+    scene = mi.load_dict({
+        "type": "scene", "integrator": {"type": "clothpath", "footprint_aovs": True, "max_depth": 1},
+        "sensor": {"type": "orthographic",
+                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 2], target=[0, 0, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": n, "height": n, "rfilter": {"type": "box"}}},
+        "square": {"type": "rectangle", "bsdf": cloth}})
+    tile = mi.load_dict(cloth).tile_w
+    img = render(scene, 4, 0)  # R, G, B, footprint_u, footprint_v, texels_u, texels_v
+    np.testing.assert_allclose(img[2:-2, 2:-2, 5], s_uv * tile / n, rtol=1e-3)
+    np.testing.assert_allclose(img[2:-2, 2:-2, 6], s_uv * tile / n, rtol=1e-3)

@@ -820,6 +820,14 @@ def make_cloth_class():
         def eval(self, ctx, si, wo, active=True):
             return self.eval_pdf(ctx, si, wo, active)[0]
 
+        def footprint_texels(self, si, active=True):
+            """Full widths (u, v) in texels of this tile of the footprint in si.duv_dx/dy
+            (the ``footprint_texels_*`` AOVs of clothpath)."""
+            wu = (dr.abs(si.duv_dx.x) + dr.abs(si.duv_dy.x)) * self.uv_scale * self.tile_w
+            wv = (dr.abs(si.duv_dx.y) + dr.abs(si.duv_dy.y)) * self.uv_scale_v * self.tile_h
+            ok = active & dr.isfinite(wu) & dr.isfinite(wv)
+            return dr.select(ok, wu, 0.0), dr.select(ok, wv, 0.0)
+
         def gap_transmission(self, si, active=True):
             """Fraction of light crossing the cloth straight along -si.wi through its gaps:
             T_sheen(i)^2 (1 - I), with I the yarn coverage of the footprint in

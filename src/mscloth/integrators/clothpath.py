@@ -63,12 +63,16 @@ centred on ``si.uv`` with half-widths 1/2 (|du/dx| + |du/dy|) and 1/2 (|dv/dx| +
 
 AOVs ``footprint_u`` and ``footprint_v``: the footprint half-widths in UV at the first hit
 (0 where the camera ray escapes), e.g. ``footprint_u`` = 1/(2N) for a UV square seen
-head-on across N pixels. Shadow rays towards delta emitters (a sun) cross cloth through
+head-on across N pixels; ``footprint_texels_u``, ``footprint_texels_v``: the footprint's full
+widths in texels of the BSDF's pattern tile (BSDFs with ``footprint_texels``, i.e. ``cloth``;
+0 elsewhere). Shadow rays towards delta emitters (a sun) cross cloth through
 its gaps (:mod:`mscloth.integrators.gap_shadows`); other emitters are reached through gaps
 by BSDF sampling.
 """
 
 _UINT32_MAX = 0xFFFFFFFF
+#: AOVs of ``footprint_aovs``: UV half-widths, and full widths in texels of the BSDF's tile.
+AOV_NAMES = ("footprint_u", "footprint_v", "footprint_texels_u", "footprint_texels_v")
 
 
 def _read_properties(props):
@@ -145,7 +149,7 @@ def make_clothpath_class():
                                  f"got {self.footprint_aovs!r}")
 
         def aov_names(self):
-            return ["footprint_u", "footprint_v"] if self.footprint_aovs else []
+            return list(AOV_NAMES) if self.footprint_aovs else []
 
         def to_string(self):
             depth = -1 if self.max_depth == _UINT32_MAX else self.max_depth
@@ -156,7 +160,7 @@ def make_clothpath_class():
         def sample(self, scene, sampler, ray, medium=None, active=True):
             if self.max_depth == 0:
                 zero = mi.Float(0.0)
-                return mi.Spectrum(0.0), mi.Bool(False), [zero, zero]
+                return mi.Spectrum(0.0), mi.Bool(False), [zero for _ in self.aov_names()]
 
             # Whole-pixel differentials and the camera's ray cone.
             ray_d = fp.undo_differential_scaling(ray, sampler.sample_count())
@@ -196,6 +200,7 @@ def make_clothpath_class():
             rr_depth = self.rr_depth
             hide_emitters = self.hide_emitters
             o_x, d_x, o_y, d_y = ray_d.o_x, ray_d.d_x, ray_d.o_y, ray_d.d_y  # loop-invariant
+            footprint_aovs = self.footprint_aovs
             emitters = list(scene.emitters())
             all_emitters = self.emitter_sampling == "all" and len(emitters) > 1
             gaps = gap_shadows.has_gap_transmission(scene)
@@ -234,8 +239,7 @@ def make_clothpath_class():
 
             def loop_body(state):
                 (sampler, ray, pi, throughput, result, eta, depth, valid_ray, prev_si,
-                 prev_bsdf_pdf, active, prev_bsdf_delta, cone_w, cone_spread,
-                 aov_u, aov_v) = state
+                 prev_bsdf_pdf, active, prev_bsdf_delta, cone_w, cone_spread, aovs) = state
 
                 si = pi.compute_surface_interaction(ray, mi.RayFlags.All)
 
@@ -251,10 +255,12 @@ def make_clothpath_class():
                 else:
                     si.duv_dx = c_dx
                     si.duv_dy = c_dy
-                record = first & si.is_valid()
-                h_u, h_v = fp.half_widths(si.duv_dx, si.duv_dy)
-                aov_u = dr.select(record, h_u, aov_u)
-                aov_v = dr.select(record, h_v, aov_v)
+                if footprint_aovs:
+                    record = first & si.is_valid()
+                    h_u, h_v = fp.half_widths(si.duv_dx, si.duv_dy)
+                    t_u, t_v = fp.footprint_texels(si.bsdf(), si, record)
+                    aovs = tuple(dr.select(record, new, old)
+                                 for new, old in zip((h_u, h_v, t_u, t_v), aovs))
 
                 # ---------------------- Direct emission ----------------------
                 # (JIT variants always take this branch, as path.cpp's any_or<true>.)
@@ -275,7 +281,7 @@ def make_clothpath_class():
                 if not jit and not active_next:  # scalar variants stop here, as path.cpp does
                     return (sampler, ray, pi, throughput, result, eta, depth, valid_ray,
                             prev_si, prev_bsdf_pdf, False, prev_bsdf_delta, cone_w,
-                            cone_spread, aov_u, aov_v)
+                            cone_spread, aovs)
 
                 bsdf = si.bsdf()
 
@@ -353,8 +359,7 @@ def make_clothpath_class():
 
                 pi = scene.ray_intersect_preliminary(ray, coherent=False, active=active)
                 return (sampler, ray, pi, throughput, result, eta, depth, valid_ray, prev_si,
-                        prev_bsdf_pdf, active, prev_bsdf_delta, cone_w, cone_spread,
-                        aov_u, aov_v)
+                        prev_bsdf_pdf, active, prev_bsdf_delta, cone_w, cone_spread, aovs)
 
             state = (
                 sampler, ray, pi,
@@ -370,7 +375,7 @@ def make_clothpath_class():
                 mi.Bool(True),                    # prev_bsdf_delta
                 mi.Float(width0),                 # cone width at the previous vertex
                 mi.Float(spread0),                # cone spread angle
-                mi.Float(0.0), mi.Float(0.0),     # AOVs
+                tuple(mi.Float(0.0) for _ in AOV_NAMES),  # AOVs
             )
             if jit:
                 state = dr.while_loop((state,), lambda st: loop_cond(st),
@@ -378,9 +383,8 @@ def make_clothpath_class():
             else:
                 while state[10]:
                     state = loop_body(state)
-            result, valid_ray, aov_u, aov_v = state[4], state[7], state[14], state[15]
-            aovs = [aov_u, aov_v] if self.footprint_aovs else []
-            return dr.select(valid_ray, result, 0.0), valid_ray, aovs
+            result, valid_ray, aovs = state[4], state[7], state[14]
+            return dr.select(valid_ray, result, 0.0), valid_ray, list(aovs) if footprint_aovs else []
 
     ClothPathIntegrator.__name__ = "ClothPathIntegrator"
     ClothPathIntegrator.__qualname__ = "ClothPathIntegrator"
