@@ -352,25 +352,7 @@ def make_cloth_class():
             wo_up = mi.Vector3f(wo.x, wo.y, dr.abs(wo.z))
             return self.footprint_data.cluster_visibilities(wo_up, fr["flip"] == up)
 
-        def _pdf_point(self, pt, wo, enabled, probs):
-            """Fibre-level pdf alone (the footprint mixture needs four of them)."""
-            wi, t = pt["wi"], pt["tangent"]
-            up = wo.z > 0.0
-            valid = (wi.z > spongecake.COS_EPSILON) & (dr.abs(wo.z) > spongecake.COS_EPSILON)
-            pdf = mi.Float(0.0)
-            if enabled[SHEEN]:
-                pdf += probs[SHEEN] * dr.select(up, sheen.pdf_sheen(wi, wo, self.sheen_roughness), 0.0)
-            if enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]:
-                side_ok = (up & enabled[SPECULAR_REFLECTION]) | (_not(up) & enabled[SPECULAR_TRANSMISSION])
-                pdf += probs[SPECULAR_REFLECTION] * dr.select(side_ok, spongecake.pdf_specular(wi, wo, t, self.roughness), 0.0)
-            cosine = dr.abs(wo.z) * dr.inv_pi
-            if enabled[DIFFUSE_REFLECTION]:
-                pdf += probs[DIFFUSE_REFLECTION] * dr.select(up, cosine, 0.0)
-            if enabled[DIFFUSE_TRANSMISSION]:
-                pdf += probs[DIFFUSE_TRANSMISSION] * dr.select(up, 0.0, cosine)
-            return dr.select(valid, pdf, 0.0)
-
-        def _eval_pdf_point(self, pt, wo, enabled, probs, want_pdf=True):
+        def _eval_pdf_point(self, pt, wo, enabled, probs):
             """Fibre-level (one texel) non-delta f*|cos o| and pdf, mirrored frame."""
             wi, t, yarn, k = pt["wi"], pt["tangent"], pt["yarn"], pt["k"]
             cos_o = wo.z
@@ -381,8 +363,7 @@ def make_cloth_class():
 
             if enabled[SHEEN]:
                 value += sheen.eval_sheen(wi, wo, self.sheen_roughness, self.sheen_thickness) * k["sheen_color"]
-                if want_pdf:
-                    pdf += probs[SHEEN] * dr.select(up, sheen.pdf_sheen(wi, wo, self.sheen_roughness), 0.0)
+                pdf += probs[SHEEN] * dr.select(up, sheen.pdf_sheen(wi, wo, self.sheen_roughness), 0.0)
 
             under_fuzz = pt["t_sheen_i"] * sheen.sheen_transmittance(wo, self.sheen_roughness, self.sheen_thickness) * yarn
             reflection = mi.Color3f(0.0)
@@ -393,19 +374,16 @@ def make_cloth_class():
                     reflection += k["specular_albedo"] * spec
                 if enabled[SPECULAR_TRANSMISSION]:
                     transmission += k["specular_transmittance"] * spec
-                if want_pdf:
-                    side_ok = (up & enabled[SPECULAR_REFLECTION]) | (_not(up) & enabled[SPECULAR_TRANSMISSION])
-                    pdf += probs[SPECULAR_REFLECTION] * dr.select(
-                        side_ok, spongecake.pdf_specular(wi, wo, t, self.roughness), 0.0)
+                side_ok = (up & enabled[SPECULAR_REFLECTION]) | (_not(up) & enabled[SPECULAR_TRANSMISSION])
+                pdf += probs[SPECULAR_REFLECTION] * dr.select(
+                    side_ok, spongecake.pdf_specular(wi, wo, t, self.roughness), 0.0)
             cosine = dr.abs(cos_o) * dr.inv_pi
             if enabled[DIFFUSE_REFLECTION]:
                 reflection += k["diffuse_albedo"] * cosine
-                if want_pdf:
-                    pdf += probs[DIFFUSE_REFLECTION] * dr.select(up, cosine, 0.0)
+                pdf += probs[DIFFUSE_REFLECTION] * dr.select(up, cosine, 0.0)
             if enabled[DIFFUSE_TRANSMISSION]:
                 transmission += k["diffuse_transmittance"] * cosine
-                if want_pdf:
-                    pdf += probs[DIFFUSE_TRANSMISSION] * dr.select(up, 0.0, cosine)
+                pdf += probs[DIFFUSE_TRANSMISSION] * dr.select(up, 0.0, cosine)
             yarn_lobes = dr.select(up, reflection, transmission)
             if self.use_visibility:
                 yarn_lobes *= self._visibility(pt, wo)
