@@ -8,7 +8,7 @@ import pytest
 
 import mscloth
 from mscloth.loading import load_dict
-from mscloth.scenes.builtin import SCENES, builtin_scene
+from mscloth.scenes.builtin import SCENES, builtin_scene, set_cloth_parameters
 from mscloth.scenes.xml_export import scene_to_xml
 
 mscloth.register()
@@ -104,8 +104,6 @@ def test_every_switch_renders_a_finite_image(switches):
     for each) and gives a finite, non-black image."""
     mscloth.register()
     scene = builtin_scene("plane", 24, 14)
-    for node in scene.values():
-        if isinstance(node, dict) and isinstance(node.get("bsdf"), dict) and node["bsdf"].get("type") == "cloth":
-            node["bsdf"].update(switches)
+    assert set_cloth_parameters(scene, **switches) == 2
     img = np.array(mi.render(load_dict(scene), spp=2))
     assert np.all(np.isfinite(img)) and img[..., :3].mean() > 0.05

@@ -201,24 +201,12 @@ def _setup_mitsuba() -> str:
     return mi.variant()
 
 
-def set_multiscale(node, value: bool):
-    """Set ``multiscale`` on every ``cloth`` BSDF in a scene dictionary (in place); return the count."""
-    count = 0
-    if isinstance(node, dict):
-        if node.get("type") == "cloth":
-            node["multiscale"] = value
-            count += 1
-        for child in node.values():
-            count += set_multiscale(child, value)
-    return count
-
-
 def scene_dict(name: str, width: int, height: int, multiscale: bool) -> dict:
     """A built-in scene's dictionary; brute force (``multiscale=False``) differs only in its cloth BSDFs."""
-    from .scenes.builtin import builtin_scene
+    from .scenes.builtin import builtin_scene, set_cloth_parameters
 
     scene = builtin_scene(name, width, height)
-    if set_multiscale(scene, multiscale) == 0:
+    if set_cloth_parameters(scene, multiscale=multiscale) == 0:
         raise ClothError(f"scene {name!r} has no cloth BSDF to compare")
     return scene
 
@@ -293,25 +281,15 @@ def timed_render(scene, spp: int, seed: int) -> Render:
 # --------------------------------------------------------------------------- reference
 
 def reference_key(name: str, width: int, height: int, spp: int) -> str:
-    """SHA-256 of what determines the reference: the scene's dictionary (so an edited
+    """SHA-256 of what determines the reference: the scene (its XML text, so an edited
     built-in scene never reuses an old reference), resolution, spp, mscloth version."""
     from .scenes.builtin import builtin_scene
+    from .scenes.xml_export import scene_to_xml
 
-    scene = _scene_text(builtin_scene(name, width, height))
+    scene = scene_to_xml(builtin_scene(name, width, height))
     text = (f"mscloth-reference|scene={name}|res={width}x{height}|spp={spp}|version={__version__}"
-            f"|dict={scene}")
+            f"|xml={scene}")
     return hashlib.sha256(text.encode()).hexdigest()
-
-
-def _scene_text(node) -> str:
-    """A stable text of a scene dictionary (transforms by their matrices)."""
-    if isinstance(node, dict):
-        return "{" + ",".join(f"{k}:{_scene_text(node[k])}" for k in sorted(node)) + "}"
-    if isinstance(node, (list, tuple)):
-        return "[" + ",".join(_scene_text(v) for v in node) + "]"
-    if hasattr(node, "matrix"):
-        return repr(np.asarray(node.matrix, dtype=np.float64).round(9).tolist())
-    return repr(node)
 
 
 def reference_path(name: str, width: int, height: int, spp: int) -> Path:

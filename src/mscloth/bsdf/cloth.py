@@ -138,6 +138,14 @@ transmission, 5 gap (delta transmission).
 """
 
 
+def _with_yarn_albedo(k, yarn_albedo):
+    """The lobe albedos with the yarn colour applied (every yarn lobe; not sheen)."""
+    k = dict(k)
+    for name in ("specular_albedo", "specular_transmittance", "diffuse_albedo", "diffuse_transmittance"):
+        k[name] = k[name] * yarn_albedo
+    return k
+
+
 def _unzip(pairs):
     """[(a, b), ...] -> ([a, ...], [b, ...])."""
     return [p[0] for p in pairs], [p[1] for p in pairs]
@@ -212,7 +220,7 @@ def make_cloth_class():
                 tables = load_or_build(self.maps, p.roughness, dr=p.direction_bins, dv=p.visibility_bins,
                                        clusters=p.clusters, per_cluster_sat=p.unbiased_ccv,
                                        d_rank=p.direction_rank)
-                self.footprint_data = FootprintData(tables, with_sats=p.multiscale)
+                self.footprint_data = FootprintData(tables, with_sats=p.multiscale, with_parallax=p.parallax)
 
             flags = 0
             for f in lobe_flags:
@@ -270,10 +278,7 @@ def make_cloth_class():
             fibre = self.fibre_texture.eval(pos, fr["active"])
             color = self.color_texture.eval(pos, fr["active"])
             tangent = mi.Vector3f(fibre[0], fibre[1], fr["sign"] * fibre[2])
-            yarn_albedo = mi.Color3f(color[0], color[1], color[2])
-            k = dict(fr["k"])
-            for name in ("specular_albedo", "specular_transmittance", "diffuse_albedo", "diffuse_transmittance"):
-                k[name] = k[name] * yarn_albedo
+            k = _with_yarn_albedo(fr["k"], mi.Color3f(color[0], color[1], color[2]))
             ix, iy = self._texel_index(pos)
             return dict(fr, tangent=tangent, yarn=fibre[3], k=k, ix=ix, iy=iy)
 
@@ -287,10 +292,9 @@ def make_cloth_class():
             for a zero footprint, which is exactly the fibre-level BSDF at si.uv); larger
             ones are at least one texel wide in each direction.
             """
-            rx = 0.5 * (dr.abs(si.duv_dx.x) + dr.abs(si.duv_dy.x)) * self.uv_scale * self.tile_w
-            ry = 0.5 * (dr.abs(si.duv_dx.y) + dr.abs(si.duv_dy.y)) * self.uv_scale_v * self.tile_h
-            use = (dr.maximum(rx, ry) > 0.5) & dr.isfinite(rx) & dr.isfinite(ry)
+            rx, ry = self._half_widths_texels(si)
             finite = dr.isfinite(rx) & dr.isfinite(ry)
+            use = (dr.maximum(rx, ry) > 0.5) & finite
             # Sub-texel half-widths, for the fibre-level branch's position in the footprint.
             sub_x = dr.select(use | _not(finite), 0.0, rx)
             sub_y = dr.select(use | _not(finite), 0.0, ry)
@@ -298,6 +302,12 @@ def make_cloth_class():
             ry = dr.select(use, dr.maximum(ry, 0.5), 0.5)
             return dict(use=use, x0=fr["x"] - rx, x1=fr["x"] + rx, y0=fr["y"] - ry, y1=fr["y"] + ry,
                         area=4.0 * rx * ry, rx=rx, ry=ry, sub_x=sub_x, sub_y=sub_y)
+
+        def _half_widths_texels(self, si):
+            """Half-widths in texels of this tile of the footprint in si.duv_dx/dy."""
+            rx = 0.5 * (dr.abs(si.duv_dx.x) + dr.abs(si.duv_dy.x)) * self.uv_scale * self.tile_w
+            ry = 0.5 * (dr.abs(si.duv_dx.y) + dr.abs(si.duv_dy.y)) * self.uv_scale_v * self.tile_h
+            return rx, ry
 
         def _enabled(self, ctx):
             return [ctx.is_enabled(lobe_types[c], c) for c in range(6)]
@@ -331,12 +341,17 @@ def make_cloth_class():
             inv = dr.select(total > 0.0, dr.rcp(total), 0.0)
             return [wk * inv for wk in w]
 
+        @staticmethod
+        def _outgoing_side(flip, wo):
+            """(wo folded up, back?) for the visibility tables: the outgoing direction
+            (mirrored frame) sees the viewer's side for reflection, the other side for
+            transmission."""
+            return mi.Vector3f(wo.x, wo.y, dr.abs(wo.z)), flip == (wo.z > 0.0)
+
         def _visibility_o(self, pt, wo):
-            """V(p, o) of the texel for the outgoing direction (mirrored frame): the viewer's
-            side for reflection, the other side for transmission."""
-            up = wo.z > 0.0
-            wo_up = mi.Vector3f(wo.x, wo.y, dr.abs(wo.z))
-            return self.footprint_data.visibility_at(pt["ix"], pt["iy"], wo_up, pt["flip"] == up)
+            """V(p, o) of the texel for the outgoing direction (mirrored frame)."""
+            wo_up, back = self._outgoing_side(pt["flip"], wo)
+            return self.footprint_data.visibility_at(pt["ix"], pt["iy"], wo_up, back)
 
         def _visibility(self, pt, wo):
             """V(p, i, o) of the texel: shadowing x masking by the cloth's height field.
@@ -348,9 +363,7 @@ def make_cloth_class():
 
         def _cluster_visibilities_o(self, fr, wo):
             """Every cluster's mean V for the outgoing direction (mirrored frame)."""
-            up = wo.z > 0.0
-            wo_up = mi.Vector3f(wo.x, wo.y, dr.abs(wo.z))
-            return self.footprint_data.cluster_visibilities(wo_up, fr["flip"] == up)
+            return self.footprint_data.cluster_visibilities(*self._outgoing_side(fr["flip"], wo))
 
         def _eval_pdf_point(self, pt, wo, enabled, probs):
             """Fibre-level (one texel) non-delta f*|cos o| and pdf, mirrored frame."""
@@ -359,11 +372,8 @@ def make_cloth_class():
             up = cos_o > 0.0
             valid = (wi.z > spongecake.COS_EPSILON) & (dr.abs(cos_o) > spongecake.COS_EPSILON)
             value = mi.Color3f(0.0)
-            pdf = mi.Float(0.0)
-
             if enabled[SHEEN]:
                 value += sheen.eval_sheen(wi, wo, self.sheen_roughness, self.sheen_thickness) * k["sheen_color"]
-                pdf += probs[SHEEN] * dr.select(up, sheen.pdf_sheen(wi, wo, self.sheen_roughness), 0.0)
 
             under_fuzz = pt["t_sheen_i"] * sheen.sheen_transmittance(wo, self.sheen_roughness, self.sheen_thickness) * yarn
             reflection = mi.Color3f(0.0)
@@ -374,23 +384,38 @@ def make_cloth_class():
                     reflection += k["specular_albedo"] * spec
                 if enabled[SPECULAR_TRANSMISSION]:
                     transmission += k["specular_transmittance"] * spec
-                side_ok = (up & enabled[SPECULAR_REFLECTION]) | (_not(up) & enabled[SPECULAR_TRANSMISSION])
-                pdf += probs[SPECULAR_REFLECTION] * dr.select(
-                    side_ok, spongecake.pdf_specular(wi, wo, t, self.roughness), 0.0)
             cosine = dr.abs(cos_o) * dr.inv_pi
             if enabled[DIFFUSE_REFLECTION]:
                 reflection += k["diffuse_albedo"] * cosine
-                pdf += probs[DIFFUSE_REFLECTION] * dr.select(up, cosine, 0.0)
             if enabled[DIFFUSE_TRANSMISSION]:
                 transmission += k["diffuse_transmittance"] * cosine
-                pdf += probs[DIFFUSE_TRANSMISSION] * dr.select(up, 0.0, cosine)
             yarn_lobes = dr.select(up, reflection, transmission)
             if self.use_visibility:
                 yarn_lobes *= self._visibility(pt, wo)
             value += under_fuzz * yarn_lobes
             value = dr.select(valid, value, 0.0)
-            pdf = dr.select(valid, pdf, 0.0)
+            pdf = dr.select(valid, self._lobes_pdf(wi, wo, probs, [t], enabled), 0.0)
             return value, pdf
+
+        def _lobes_pdf(self, wi, wo, probs, tangents, enabled):
+            """Density of picking a lobe by ``probs`` and sampling it (mirrored frame), the
+            specular lobe from one of ``tangents`` chosen uniformly; validity not masked."""
+            up = wo.z > 0.0
+            pdf = mi.Float(0.0)
+            if enabled[SHEEN]:
+                pdf += probs[SHEEN] * sheen.pdf_sheen(wi, wo, self.sheen_roughness)
+            if enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]:
+                side_ok = (up & enabled[SPECULAR_REFLECTION]) | (_not(up) & enabled[SPECULAR_TRANSMISSION])
+                spec = mi.Float(0.0)
+                for t in tangents:
+                    spec += spongecake.pdf_specular(wi, wo, t, self.roughness)
+                pdf += probs[SPECULAR_REFLECTION] * dr.select(side_ok, spec * (1.0 / len(tangents)), 0.0)
+            cosine = dr.abs(wo.z) * dr.inv_pi
+            if enabled[DIFFUSE_REFLECTION]:
+                pdf += probs[DIFFUSE_REFLECTION] * dr.select(up, cosine, 0.0)
+            if enabled[DIFFUSE_TRANSMISSION]:
+                pdf += probs[DIFFUSE_TRANSMISSION] * dr.select(up, 0.0, cosine)
+            return pdf
 
         def _footprint_state(self, si, fr, enabled, xi=None, xi_round=None):
             """Everything of the footprint that does not depend on the outgoing direction,
@@ -419,7 +444,7 @@ def make_cloth_class():
 
             st = dict(fp=fp, q=q, inv_area=inv_area)
             st["yarn_mean"] = yarn_mean = mean(fd.GAP)
-            st["inv_yarn"] = inv_yarn = dr.select(yarn_mean > 1e-6, dr.rcp(yarn_mean), 0.0)
+            inv_yarn = dr.select(yarn_mean > 1e-6, dr.rcp(yarn_mean), 0.0)
             if self.uniform_yarn_albedo is not None:
                 st["yarn_albedo"] = mi.Color3f(*self.uniform_yarn_albedo)
             else:
@@ -433,7 +458,6 @@ def make_cloth_class():
 
             # Four texels of the control-variate residual, one uniform in each quadrant of
             # the footprint (stratified: a quarter of the variance of one texel or less).
-            st["q_d"] = q
             st["texels"] = texels = self._stratified_texels(fr, fp, xi)
             if self.use_visibility:
                 st["cvis_i"] = cvis_i = fd.cluster_visibilities(fr["wi"], fr["flip"])
@@ -447,12 +471,11 @@ def make_cloth_class():
             # The sampling mixture: lobes chosen by the footprint's own averages (yarn
             # coverage, yarn colour, mean SGGX matrix), the specular lobe from the tangent
             # of one of the four texels, and a defensive cosine component.
-            k = dict(fr["k"])
-            for name in ("specular_albedo", "specular_transmittance", "diffuse_albedo", "diffuse_transmittance"):
-                k[name] = k[name] * st["yarn_albedo"]
+            k = _with_yarn_albedo(fr["k"], st["yarn_albedo"])
             scattered = mi.Float(0.0)
             if "moments" in st:
-                scattered = 1.0 - dr.exp(-self.thickness * self._mean_sigma(st, fr["wi"]) / fr["wi"].z)
+                sigma_i = self._mean_sigma(st, fr["wi"])
+                scattered = 1.0 - spongecake.unscattered_transmittance_from(sigma_i, fr["wi"], self.thickness)
             st["fp_probs"] = self._lobe_weights(k, fr["wi"], yarn_mean, fr["t_sheen_i"], scattered, enabled)
             eps_c = self.DEFENSIVE_COSINE if any(enabled[:5]) else 0.0
             st["eps_c"] = dr.select(fp["use"], eps_c, 0.0)
@@ -501,7 +524,7 @@ def make_cloth_class():
                 channels = fd.direction_channels(bins, weights)
                 d_yarn = mi.Float(0.0)  # mean over P of D(h, t) I
                 for ch, wt in channels:
-                    d_yarn += wt * fd.d_sat.integral(st["q_d"], ch)
+                    d_yarn += wt * fd.d_sat.integral(st["q"], ch)
                 d_yarn *= st["inv_area"]
                 # f_rs per unit D: G of the footprint's mean SGGX matrix (g_bar), and of each
                 # residual texel's own tangent (g_k). The residual corrects mean(D) g_bar
@@ -521,7 +544,7 @@ def make_cloth_class():
                         for c in range(fd.clusters):
                             d_c = mi.Float(0.0)
                             for ch, wt in channels:
-                                d_c += wt * fd.d_sat_cluster.integral(st["q_d"], c * n_channels + ch)
+                                d_c += wt * fd.d_sat_cluster.integral(st["q"], c * n_channels + ch)
                             base += st["cvis_i"][c] * cvis_o[c] * d_c
                         base *= st["inv_area"]
                     else:
@@ -585,25 +608,10 @@ def make_cloth_class():
         def _mixture_pdf(self, fr, st, wo, enabled):
             """Density of the footprint mixture's non-delta directions (mirrored frame)."""
             wi = fr["wi"]
-            probs = st["fp_probs"]
-            up = wo.z > 0.0
             valid = (wi.z > spongecake.COS_EPSILON) & (dr.abs(wo.z) > spongecake.COS_EPSILON)
-            pdf = mi.Float(0.0)
-            if enabled[SHEEN]:
-                pdf += probs[SHEEN] * sheen.pdf_sheen(wi, wo, self.sheen_roughness)
-            if enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]:
-                side_ok = (up & enabled[SPECULAR_REFLECTION]) | (_not(up) & enabled[SPECULAR_TRANSMISSION])
-                spec = mi.Float(0.0)
-                for t_ in st["texels"]:
-                    spec += spongecake.pdf_specular(wi, wo, t_["tangent"], self.roughness)
-                pdf += probs[SPECULAR_REFLECTION] * dr.select(side_ok, 0.25 * spec, 0.0)
-            cosine = dr.abs(wo.z) * dr.inv_pi
-            if enabled[DIFFUSE_REFLECTION]:
-                pdf += probs[DIFFUSE_REFLECTION] * dr.select(up, cosine, 0.0)
-            if enabled[DIFFUSE_TRANSMISSION]:
-                pdf += probs[DIFFUSE_TRANSMISSION] * dr.select(up, 0.0, cosine)
+            pdf = self._lobes_pdf(wi, wo, st["fp_probs"], [t_["tangent"] for t_ in st["texels"]], enabled)
             eps_c = st["eps_c"]
-            return dr.select(valid, (1.0 - eps_c) * pdf + eps_c * 0.5 * cosine, 0.0)
+            return dr.select(valid, (1.0 - eps_c) * pdf + eps_c * 0.5 * dr.abs(wo.z) * dr.inv_pi, 0.0)
 
         def _hash4(self, si):
             """Four deterministic pseudo-random numbers per shading point (two 2D points,
@@ -801,8 +809,8 @@ def make_cloth_class():
         def footprint_texels(self, si, active=True):
             """Full widths (u, v) in texels of this tile of the footprint in si.duv_dx/dy
             (the ``footprint_texels_*`` AOVs of clothpath)."""
-            wu = (dr.abs(si.duv_dx.x) + dr.abs(si.duv_dy.x)) * self.uv_scale * self.tile_w
-            wv = (dr.abs(si.duv_dx.y) + dr.abs(si.duv_dy.y)) * self.uv_scale_v * self.tile_h
+            rx, ry = self._half_widths_texels(si)
+            wu, wv = 2.0 * rx, 2.0 * ry
             ok = active & dr.isfinite(wu) & dr.isfinite(wv)
             return dr.select(ok, wu, 0.0), dr.select(ok, wv, 0.0)
 

@@ -13,7 +13,7 @@ from .sat_queries import ResidualSATs, flat_array, gather, hemisphere_bins
 class FootprintData:
     """Uploads a :class:`mscloth.precompute.tables.MultiscaleTables`."""
 
-    def __init__(self, tables, with_sats: bool):
+    def __init__(self, tables, with_sats: bool, with_parallax: bool):
         self.H, self.W = tables.visibility.shape[:2]
         self.dr = int(tables.dr)
         self.dv = int(tables.dv)
@@ -28,8 +28,8 @@ class FootprintData:
         self.cluster_vis = flat_array(np.moveaxis(cvis, 1, 2))
         # Cluster ids as floats (exact for small integers): one gatherable array type.
         self.cluster_id = flat_array(np.maximum(tables.cluster_id, 0))
-        self.parallax = flat_array(tables.parallax)  # (H, W, dv*dv, 2) texel offsets
-        self.with_sats = with_sats
+        if with_parallax:  # (H, W, dv*dv, 2) texel offsets; 18 MiB for a 192^2 tile
+            self.parallax = flat_array(tables.parallax)
         self.per_cluster = with_sats and getattr(tables, "d_sat_cluster", None) is not None
         if with_sats:
             self.d_sat = ResidualSATs(tables.d_sat, tables.d_mean)
@@ -66,16 +66,6 @@ class FootprintData:
     # Channel offsets inside scalar_sats.
     GAP, ALBEDO, MOMENTS = 0, 1, 4
     CLUSTERS = 10
-
-    def nbytes(self) -> int:
-        total = 4 * (len(self.visibility) + len(self.cluster_vis) + len(self.cluster_id))
-        if self.with_sats:
-            total += self.d_sat.nbytes() + self.scalar_sats.nbytes()
-            if self.d_rank:
-                total += 4 * len(self.d_basis)
-            if self.per_cluster:
-                total += self.d_sat_cluster.nbytes()
-        return total
 
     # ------------------------------------------------------------------ visibility
     def visibility_at(self, ix, iy, w, back):

@@ -72,9 +72,6 @@ class ResidualSATs:
         self.last_col = flat_array(np.moveaxis(sat[:, :, self.W], 0, -1))
         self.last_row = flat_array(np.moveaxis(sat[:, self.H, :], 0, -1))
 
-    def nbytes(self) -> int:
-        return 4 * (len(self.data) + len(self.last_col) + len(self.last_row) + 2 * self.channels)
-
     def _corner(self, x, y, on_grid=False):
         W, H = float(self.W), float(self.H)
         c = _Corner()
@@ -139,11 +136,6 @@ class ResidualSATs:
                 row = dr.lerp(gather(self.last_row, row, c.use_row), gather(self.last_row, row + C, c.use_row), c.fx)
             residual += sign * (c.qx * c.qy * total + c.qx * col + c.qy * row + inner)
         return residual + gather(self.mean, channel) * q.area
-
-    def rect_integral(self, channel, x0, y0, x1, y1):
-        """Integral of the original values of ``channel`` over the texel rectangle
-        [x0, x1] x [y0, y1] (any size, any position: periodic)."""
-        return self.integral(self.query(x0, y0, x1, y1), channel)
 
 
 def hemisphere_bins(w, n: int):

@@ -121,6 +121,22 @@ def eval_pdf_sample_n(bsdf, ctx, si, si_centred, wos, sample1, sample2, active=T
     return values, pdfs, bs, weight
 
 
+def _footprint_texels_of(bsdf, si, active=True):
+    if hasattr(bsdf, "footprint_texels"):
+        return bsdf.footprint_texels(si, active)
+    return mi.Float(0.0), mi.Float(0.0)
+
+
+def footprint_texels(bsdf, si, active):
+    """(width_u, width_v): the footprint's full widths in texels of ``bsdf``'s pattern tile
+    (BSDFs with ``footprint_texels``), 0 for other BSDFs and where no surface was hit."""
+    if dr.is_jit_v(mi.Float):
+        return dr.dispatch(bsdf, _footprint_texels_of, si, active)
+    if bsdf is None or not active:
+        return mi.Float(0.0), mi.Float(0.0)
+    return _footprint_texels_of(bsdf, si, active)
+
+
 def _not(mask):
     """Logical not of a mask, also for the Python bools of scalar variants (where ~ is wrong)."""
     return mask ^ True
@@ -258,7 +274,7 @@ def make_clothpath_class():
                 if footprint_aovs:
                     record = first & si.is_valid()
                     h_u, h_v = fp.half_widths(si.duv_dx, si.duv_dy)
-                    t_u, t_v = fp.footprint_texels(si.bsdf(), si, record)
+                    t_u, t_v = footprint_texels(si.bsdf(), si, record)
                     aovs = tuple(dr.select(record, new, old)
                                  for new, old in zip((h_u, h_v, t_u, t_v), aovs))
 

@@ -263,18 +263,3 @@ def centred_uv(uv, duv_dx, duv_dy, ox, oy):
     """uv of the pixel centre from a sample's uv and its offset (ox, oy) in pixels."""
     return uv - duv_dx * ox - duv_dy * oy
 
-
-def _texels_of(bsdf, si, active=True):
-    if hasattr(bsdf, "footprint_texels"):
-        return bsdf.footprint_texels(si, active)
-    return mi.Float(0.0), mi.Float(0.0)
-
-
-def footprint_texels(bsdf, si, active):
-    """(width_u, width_v): the footprint's full widths in texels of ``bsdf``'s pattern tile
-    (BSDFs with ``footprint_texels``), 0 for other BSDFs and where no surface was hit."""
-    if dr.is_jit_v(mi.Float):
-        return dr.dispatch(bsdf, _texels_of, si, active)
-    if bsdf is None or not active:
-        return mi.Float(0.0), mi.Float(0.0)
-    return _texels_of(bsdf, si, active)

@@ -69,7 +69,12 @@ def sggx_fibre_ndf(m: np.ndarray, t: np.ndarray, alpha: float) -> np.ndarray:
     The fibre-like SGGX of :mod:`mscloth.scattering.sggx` (S = alpha^2 t t^T + I - t t^T).
     """
     mt = np.sum(np.asarray(m, dtype=np.float64) * np.asarray(t, dtype=np.float64), axis=-1)
-    mt2 = mt * mt
+    return fibre_ndf_of_cosine(mt, alpha)
+
+
+def fibre_ndf_of_cosine(mt: np.ndarray, alpha: float) -> np.ndarray:
+    """:func:`sggx_fibre_ndf` as a function of the cosine m.t (any shape, float64)."""
+    mt2 = np.square(mt)
     q = mt2 + alpha * alpha * (1.0 - mt2)
     return alpha ** 3 / (np.pi * q * q)
 
@@ -428,10 +433,8 @@ def _d_basis(bins, tangent, gap, alpha, K, seed, samples=8192):
         yarn = np.arange(len(gap))
     rng = np.random.default_rng(seed)
     pick = yarn if len(yarn) <= samples else rng.choice(yarn, samples, replace=False)
-    t = tangent[pick]
-    m = np.square(bins @ t.T)                       # (B, S) cosines^2
-    m = alpha ** 3 / (np.pi * np.square(m * (1.0 - alpha * alpha) + alpha * alpha)) * gap[pick]
-    vals, vecs = np.linalg.eigh(m @ m.T)
+    m = fibre_ndf_of_cosine(bins @ tangent[pick].T, alpha) * gap[pick]   # (B, S)
+    _, vecs = np.linalg.eigh(m @ m.T)
     return np.ascontiguousarray(vecs[:, ::-1][:, :K])
 
 

@@ -32,14 +32,15 @@ def _one_minus_exp_over_x(x):
     return dr.select(small, series, direct)
 
 
-def signed_lambda(w, t, alpha):
-    """Lambda(w) = sigma(w) / cos(theta_w); negative below the surface."""
-    return sggx.projected_area(w, t, alpha) / w.z
-
-
 def unscattered_transmittance(w, t, alpha, thickness):
     """e^{-T |Lambda(w)|}: the fraction crossing the layer along w unscattered."""
-    return dr.exp(-thickness * dr.abs(signed_lambda(w, t, alpha)))
+    return unscattered_transmittance_from(sggx.projected_area(w, t, alpha), w, thickness)
+
+
+def unscattered_transmittance_from(sigma, w, thickness):
+    """:func:`unscattered_transmittance` given the projected area ``sigma`` = sigma(w) (the
+    form multi-scale shading uses with a footprint's mean SGGX matrix)."""
+    return dr.exp(-thickness * dr.abs(sigma / w.z))
 
 
 def reflection_attenuation(lambda_i, lambda_o, thickness):

@@ -94,6 +94,19 @@ def drape_scene(width: int = 512, height: int = 288, mesh_dir: str | os.PathLike
 SCENES = {"plane": plane_scene, "sphere": sphere_scene, "drape": drape_scene}
 
 
+def set_cloth_parameters(node, **params) -> int:
+    """Set ``params`` on every ``cloth`` BSDF of a scene dictionary (in place); return how
+    many there are."""
+    count = 0
+    if isinstance(node, dict):
+        if node.get("type") == "cloth":
+            node.update(params)
+            count += 1
+        for child in node.values():
+            count += set_cloth_parameters(child, **params)
+    return count
+
+
 def builtin_scene(name: str, width: int = 512, height: int = 288) -> dict:
     """The scene dictionary of a built-in scene (needs ``mscloth.register()`` to load)."""
     if name not in SCENES:
