@@ -78,6 +78,8 @@ def load(name, integrator_type, config, emitter_sampling="one"):
     """`path` or `clothpath` (by default picking one emitter per vertex, as `path` does)."""
     if integrator_type == "clothpath":
         config = dict({"footprint_aovs": True, "emitter_sampling": emitter_sampling}, **config)
+    else:  # `path` has one emitter sample per vertex
+        config = {k: v for k, v in config.items() if k != "emitter_samples"}
     return mi.load_dict(SCENES[name](dict(type=integrator_type, **config)))
 
 
@@ -123,13 +125,15 @@ def _region_means(imgs: np.ndarray, block: int) -> np.ndarray:
 
 @pytest.mark.parametrize("emitter_sampling", ["one", "all"])
 @pytest.mark.parametrize("name", list(SCENES))
-@pytest.mark.parametrize("config", [{}, {"max_depth": 2}, {"hide_emitters": True}],
-                         ids=["default", "max_depth=2", "hide_emitters"])
+@pytest.mark.parametrize("config", [{}, {"max_depth": 2}, {"hide_emitters": True}, {"emitter_samples": 3}],
+                         ids=["default", "max_depth=2", "hide_emitters", "emitter_samples=3"])
 def test_agrees_with_path_in_expectation(name, config, emitter_sampling):
     """Independent seeds, 16 passes x 64 spp each: the image mean and 4x4 tile means agree
     with `path` within 5 standard errors, the errors estimated from the pass-to-pass spread.
-    With ``emitter_sampling=all`` (every emitter sampled at each vertex, the cornell box has
-    two) the estimator differs from `path`'s but must converge to the same image."""
+    With ``emitter_sampling=all`` (every emitter sampled at each vertex, except the cornell
+    box's constant sky, left to BSDF sampling) or several emitter samples per vertex (MIS
+    weighted by their count) the estimator differs from `path`'s but must converge to the
+    same image."""
     passes, spp = 16, 64
     ref_scene = load(name, "path", config)
     our_scene = load(name, "clothpath", config, emitter_sampling)
@@ -143,6 +147,30 @@ def test_agrees_with_path_in_expectation(name, config, emitter_sampling):
     tol = 5.0 * se + 1e-5 * scale
     worst = np.max(np.abs(diff) / tol)
     assert worst <= 1.0, (worst, diff, se)
+
+
+def test_uniform_environment_is_left_to_bsdf_sampling():
+    """A diffuse square under a constant sky only: with ``all`` the sky is reached by
+    cosine-weighted BSDF samples alone, whose weight is the albedo, so every pixel on the
+    square is albedo x radiance at 1 spp without noise; ``one`` (Mitsuba's MIS with uniform
+    sphere samples of the sky) is noisy."""
+    def scene(mode):
+        return mi.load_dict({
+            "type": "scene",
+            "integrator": {"type": "clothpath", "emitter_sampling": mode},
+            "sensor": {"type": "perspective", "fov": 20,  # every pixel on the square
+                       "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 4], target=[0, 0, 0], up=[0, 1, 0]),
+                       "film": {"type": "hdrfilm", "width": 16, "height": 16}},
+            "square": {"type": "rectangle",
+                       "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.5, 0.4, 0.3]}}},
+            "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [1.0, 2.0, 3.0]}},
+        })
+
+    expected = np.array([0.5, 2 * 0.4, 3 * 0.3])
+    every = render(scene("all"), 1, 0)[..., :3].reshape(-1, 3)
+    one = render(scene("one"), 1, 0)[..., :3].reshape(-1, 3)
+    np.testing.assert_allclose(every, np.broadcast_to(expected, every.shape), rtol=1e-5)
+    assert np.abs(one - expected).max() > 0.05
 
 
 def test_max_depth_one_is_emitters_only():
@@ -180,6 +208,9 @@ def test_invalid_parameters():
         mi.load_dict({"type": "clothpath", "rr_depth": 0})
     with pytest.raises(Exception, match='"emitter_sampling" must be "all" or "one"'):
         mi.load_dict({"type": "clothpath", "emitter_sampling": "some"})
+    for bad in (0, 257, 2.5):
+        with pytest.raises(Exception, match='"emitter_samples" must be an integer in'):
+            mi.load_dict({"type": "clothpath", "emitter_samples": bad})
 
 
 def test_registration_is_idempotent():

@@ -13,6 +13,7 @@ import numpy as np
 from ..maps.builtin import resolve_pattern
 from ..scattering import sggx, sheen, spongecake
 from .footprint_data import FootprintData
+from .lobe_calibration import LobeCalibration, measure_ratios
 from .sat_queries import hemisphere_bins
 from .parameters import FLOAT_PARAMETERS, SPECTRUM_PARAMETERS, read_parameters
 
@@ -130,6 +131,10 @@ back side sees the same maps mirrored through the surface.
        within ~0.5% at roughness 0.3 and cuts a 512^2, dr = 32 table from 1 GiB to 64 MiB,
        at more reads per lookup.
 
+Sampling picks one lobe by an estimate of its albedo, calibrated when the BSDF is built
+against measured lobe albedos (``bsdf/lobe_calibration.py``; JIT variants), and samples it
+exactly (visible normals, cosine); the weight is the whole mixture's eval over its pdf.
+
 Per channel, diffuse_albedo + diffuse_transmittance + max(specular_albedo,
 specular_transmittance) must not exceed 1, so that no configuration creates
 energy. Components (for ``BSDFContext.component``): 0 sheen, 1 specular
@@ -227,6 +232,12 @@ def make_cloth_class():
                 flags |= f
             self.m_components = list(lobe_flags)
             self.m_flags = flags
+            # Lobe selection matched to the lobes' albedos, measured once (JIT variants;
+            # scalar variants, for unit tests, keep the uncalibrated proxies).
+            self.lobe_calibration = None
+            if dr.is_jit_v(mi.Float):
+                with dr.suspend_grad():
+                    self.lobe_calibration = LobeCalibration(measure_ratios(self, self._point_proxies))
 
         def _upload_maps(self, maps):
             fibre = np.concatenate([maps.tangent, maps.gap[..., None]], axis=-1).astype(np.float32)
@@ -315,12 +326,32 @@ def make_cloth_class():
         def _lobe_probabilities(self, pt, enabled):
             """Selection probabilities of the texel's lobes, proportional to each lobe's
             estimated albedo."""
-            scattered = 1.0 - spongecake.unscattered_transmittance(pt["wi"], pt["tangent"], self.roughness, self.thickness)
-            return self._lobe_weights(pt["k"], pt["wi"], pt["yarn"], pt["t_sheen_i"], scattered, enabled)
+            return self._lobe_weights(pt["k"], pt["wi"], pt["yarn"], pt["t_sheen_i"], self._scattered(pt), enabled)
+
+        def _scattered(self, pt):
+            """The share of light the texel's specular slab scatters (for its proxy)."""
+            return 1.0 - spongecake.unscattered_transmittance(pt["wi"], pt["tangent"], self.roughness, self.thickness)
+
+        def _point_proxies(self, si):
+            """Unnormalised lobe proxies of the fibre-level texels of ``si`` (calibration)."""
+            fr = self._frame(si, True)
+            pt = self._texel(fr, fr["x"], fr["y"])
+            return self._lobe_proxies(pt["k"], pt["wi"], pt["yarn"], pt["t_sheen_i"], self._scattered(pt), [True] * 6)
 
         def _lobe_weights(self, k, wi, yarn, ts, scattered, enabled):
             """Normalised albedo estimates of the six lobes for yarn coverage ``yarn``, lobe
-            albedos ``k`` (yarn colour included) and scattered fraction ``scattered``."""
+            albedos ``k`` (yarn colour included) and scattered fraction ``scattered``: the
+            proxies times their measured ratios to the lobes' albedos
+            (:mod:`.lobe_calibration`)."""
+            w = self._lobe_proxies(k, wi, yarn, ts, scattered, enabled)
+            if self.lobe_calibration is not None:
+                w = self.lobe_calibration.scale(w, wi.z)
+            total = w[0] + w[1] + w[2] + w[3] + w[4] + w[5]
+            inv = dr.select(total > 0.0, dr.rcp(total), 0.0)
+            return [wk * inv for wk in w]
+
+        def _lobe_proxies(self, k, wi, yarn, ts, scattered, enabled):
+            """Cheap unnormalised albedo estimates of the six lobes (the gap's is exact)."""
             zero = dr.zeros(mi.Float, dr.width(wi))
             w = [zero] * 6
             if enabled[SHEEN]:
@@ -337,9 +368,7 @@ def make_cloth_class():
                 w[DIFFUSE_TRANSMISSION] = ts * yarn * _max_channel(k["diffuse_transmittance"])
             if enabled[GAP]:
                 w[GAP] = ts * ts * (1.0 - yarn)
-            total = w[0] + w[1] + w[2] + w[3] + w[4] + w[5]
-            inv = dr.select(total > 0.0, dr.rcp(total), 0.0)
-            return [wk * inv for wk in w]
+            return w
 
         @staticmethod
         def _outgoing_side(flip, wo):
@@ -478,7 +507,13 @@ def make_cloth_class():
                 scattered = 1.0 - spongecake.unscattered_transmittance_from(sigma_i, fr["wi"], self.thickness)
             st["fp_probs"] = self._lobe_weights(k, fr["wi"], yarn_mean, fr["t_sheen_i"], scattered, enabled)
             eps_c = self.DEFENSIVE_COSINE if any(enabled[:5]) else 0.0
-            st["eps_c"] = dr.select(fp["use"], eps_c, 0.0)
+            st["eps_c"] = eps_c = dr.select(fp["use"], eps_c, 0.0)
+            # Its lower (transmission) half takes the diffuse lobes' split, at least a
+            # tenth on either side: at grazing angles a fixed half wasted 5% of samples.
+            p_dr, p_dt = st["fp_probs"][DIFFUSE_REFLECTION], st["fp_probs"][DIFFUSE_TRANSMISSION]
+            diffuse = p_dr + p_dt
+            lower = dr.select(diffuse > 0.0, p_dt / dr.select(diffuse > 0.0, diffuse, 1.0), 0.5)
+            st["eps_lower"] = eps_c * dr.clip(lower, self.DEFENSIVE_MIN_SIDE, 1.0 - self.DEFENSIVE_MIN_SIDE)
             return st
 
         def _mean_sigma(self, st, w):
@@ -589,6 +624,8 @@ def make_cloth_class():
         # specular lobe from one of the four stratified texels, and a defensive cosine
         # component that keeps every direction reachable.
         DEFENSIVE_COSINE = 0.1
+        #: The least share of the defensive cosine on either side of the surface.
+        DEFENSIVE_MIN_SIDE = 0.1
 
         # Offsets of the four stratified texels' random numbers (a rotated 2x2 lattice):
         # each stays uniform in its quadrant, and together they spread further.
@@ -610,8 +647,9 @@ def make_cloth_class():
             wi = fr["wi"]
             valid = (wi.z > spongecake.COS_EPSILON) & (dr.abs(wo.z) > spongecake.COS_EPSILON)
             pdf = self._lobes_pdf(wi, wo, st["fp_probs"], [t_["tangent"] for t_ in st["texels"]], enabled)
-            eps_c = st["eps_c"]
-            return dr.select(valid, (1.0 - eps_c) * pdf + eps_c * 0.5 * dr.abs(wo.z) * dr.inv_pi, 0.0)
+            eps_c, eps_lower = st["eps_c"], st["eps_lower"]
+            eps_side = dr.select(wo.z > 0.0, eps_c - eps_lower, eps_lower)
+            return dr.select(valid, (1.0 - eps_c) * pdf + eps_side * dr.abs(wo.z) * dr.inv_pi, 0.0)
 
         def _hash4(self, si):
             """Four deterministic pseudo-random numbers per shading point (two 2D points,
@@ -727,8 +765,8 @@ def make_cloth_class():
 
             wo, ok, component, gap_ok = self._sample_point(chosen, fp_probs, enabled, u, sample2, active)
             wo_cos = mi.warp.square_to_cosine_hemisphere(sample2)
-            # The defensive cosine side: the lower or upper half of its sample1 slice.
-            lower = sample1 < 0.5 * eps_c
+            # The defensive cosine side: the lower or upper part of its sample1 slice.
+            lower = sample1 < st["eps_lower"]
             wo_cos.z = dr.select(lower, -wo_cos.z, wo_cos.z)
             wo = dr.select(pick_def_cos, wo_cos, wo)
             viewer_ok = active & (fr["wi"].z > spongecake.COS_EPSILON)

@@ -58,8 +58,19 @@ centred on ``si.uv`` with half-widths 1/2 (|du/dx| + |du/dy|) and 1/2 (|dv/dx| +
      - string
      - ``all``
      - ``all``: sample every emitter once at each vertex (MIS with BSDF sampling per
-       emitter), so a sun and a sky never compete for one sample; ``one``: pick one
-       emitter per vertex as Mitsuba's ``path`` does (same image with the same seed).
+       emitter), so a sun and a sky never compete for one sample, except a uniform
+       environment (``constant``), which BSDF sampling alone reaches with less noise;
+       ``one``: pick one emitter per vertex as Mitsuba's ``path`` does (same image with
+       the same seed).
+   * - emitter_samples
+     - integer
+     - 1
+     - Emitter samples per vertex (per emitter with ``all``; delta emitters such as a sun
+       take one, since more would repeat it). MIS weighs them against the one BSDF sample
+       with their count (Veach's multi-sample power heuristic). More samples cut the
+       lighting noise of an environment at the cost of shadow rays and BSDF evaluations,
+       which footprint BSDFs share per shading point; the texture noise of a fibre-level
+       BSDF needs pixel samples instead.
 
 AOVs ``footprint_u`` and ``footprint_v``: the footprint half-widths in UV at the first hit
 (0 where the camera ray escapes), e.g. ``footprint_u`` = 1/(2N) for a UV square seen
@@ -87,7 +98,12 @@ def _read_properties(props):
     if emitter_sampling not in ("all", "one"):
         raise ValueError('clothpath: "emitter_sampling" must be "all" or "one", '
                          f"got {emitter_sampling!r}")
-    return (_UINT32_MAX if max_depth == -1 else max_depth), rr_depth, emitter_sampling
+    emitter_samples = props.get("emitter_samples", 1)
+    if not isinstance(emitter_samples, int) or not 1 <= emitter_samples <= 256:
+        raise ValueError('clothpath: "emitter_samples" must be an integer in [1, 256], '
+                         f"got {emitter_samples!r}")
+    return ((_UINT32_MAX if max_depth == -1 else max_depth), rr_depth, emitter_sampling,
+            emitter_samples)
 
 
 def mis_weight(pdf_a, pdf_b):
@@ -119,6 +135,11 @@ def eval_pdf_sample_n(bsdf, ctx, si, si_centred, wos, sample1, sample2, active=T
         pdfs.append(pdf)
     bs, weight = bsdf.sample(ctx, si, sample1, sample2, active)
     return values, pdfs, bs, weight
+
+
+def _is_uniform(emitter):
+    """A ``constant`` environment: the same radiance from every direction."""
+    return emitter is not None and emitter.class_name() == "ConstantBackgroundEmitter"
 
 
 def _footprint_texels_of(bsdf, si, active=True):
@@ -157,7 +178,8 @@ def make_clothpath_class():
 
         def __init__(self, props):
             mi.SamplingIntegrator.__init__(self, props)
-            self.max_depth, self.rr_depth, self.emitter_sampling = _read_properties(props)
+            (self.max_depth, self.rr_depth, self.emitter_sampling,
+             self.emitter_samples) = _read_properties(props)
             # Off by default: an RGB image from mi.render, as with Mitsuba's `path`.
             self.footprint_aovs = props.get("footprint_aovs", False)
             if not isinstance(self.footprint_aovs, bool):
@@ -171,7 +193,8 @@ def make_clothpath_class():
             depth = -1 if self.max_depth == _UINT32_MAX else self.max_depth
             return (f"ClothPathIntegrator[max_depth = {depth}, rr_depth = {self.rr_depth}, "
                     f"hide_emitters = {self.hide_emitters}, "
-                    f"emitter_sampling = {self.emitter_sampling}]")
+                    f"emitter_sampling = {self.emitter_sampling}, "
+                    f"emitter_samples = {self.emitter_samples}]")
 
         def sample(self, scene, sampler, ray, medium=None, active=True):
             if self.max_depth == 0:
@@ -218,7 +241,13 @@ def make_clothpath_class():
             o_x, d_x, o_y, d_y = ray_d.o_x, ray_d.d_x, ray_d.o_y, ray_d.d_y  # loop-invariant
             footprint_aovs = self.footprint_aovs
             emitters = list(scene.emitters())
-            all_emitters = self.emitter_sampling == "all" and len(emitters) > 1
+            # `all`: a uniform environment is left to BSDF sampling (MIS weight 1 where a
+            # ray escapes); sampling it uniformly over the sphere only adds noise.
+            env_by_bsdf = self.emitter_sampling == "all" and _is_uniform(scene.environment())
+            if env_by_bsdf:
+                emitters = [e for e in emitters if not _is_uniform(e)]
+            all_emitters = self.emitter_sampling == "all" and (len(emitters) > 1 or env_by_bsdf)
+            n_em = self.emitter_samples
             gaps = gap_shadows.has_gap_transmission(scene)
             # The perspective camera these rays come from (their lines pass through its
             # centre of projection; ray origins sit on the near plane), for pixel centres.
@@ -288,7 +317,10 @@ def make_clothpath_class():
                             em_pdf = ds.emitter.pdf_direction(prev_si, ds, _not(prev_bsdf_delta))
                         else:
                             em_pdf = scene.pdf_emitter_direction(prev_si, ds, _not(prev_bsdf_delta))
-                    mis_bsdf = mis_weight(prev_bsdf_pdf, em_pdf)
+                    if env_by_bsdf:
+                        em_pdf = dr.select(si.is_valid(), em_pdf, 0.0)
+                    # Only non-delta emitters can be hit, and each had n_em samples.
+                    mis_bsdf = mis_weight(prev_bsdf_pdf, n_em * em_pdf)
                     result = spec_fma(throughput,
                                       ds.emitter.eval(si, prev_bsdf_pdf > 0.0) * mis_bsdf, result)
 
@@ -307,15 +339,18 @@ def make_clothpath_class():
                 if jit or active_em:
                     if all_emitters:
                         for emitter in emitters:
-                            ds, em_weight = emitter.sample_direction(si, sampler.next_2d(), active_em)
+                            delta = mi.has_flag(emitter.flags(), mi.EmitterFlags.Delta)
+                            for _ in range(1 if delta else n_em):
+                                ds, em_weight = emitter.sample_direction(si, sampler.next_2d(), active_em)
+                                em_samples.append(self._visible(scene, si, ds, em_weight, active_em,
+                                                                gaps, w_hit, cone_spread))
+                    else:
+                        for _ in range(n_em):
+                            # Visibility as Mitsuba tests it, plus gaps for delta emitters.
+                            ds, em_weight = scene.sample_emitter_direction(si, sampler.next_2d(), False,
+                                                                           active_em)
                             em_samples.append(self._visible(scene, si, ds, em_weight, active_em, gaps,
                                                             w_hit, cone_spread))
-                    else:
-                        # Visibility as Mitsuba tests it, plus gaps for delta emitters.
-                        ds, em_weight = scene.sample_emitter_direction(si, sampler.next_2d(), False,
-                                                                       active_em)
-                        em_samples.append(self._visible(scene, si, ds, em_weight, active_em, gaps,
-                                                        w_hit, cone_spread))
                 if not em_samples:
                     em_samples.append((None, None, False, mi.Vector3f(0.0)))
 
@@ -339,9 +374,12 @@ def make_clothpath_class():
 
                 # ---------------- Emitter sampling contribution ---------------
                 for (ds, em_weight, em_active, wo), bsdf_val, bsdf_pdf in zip(em_samples, bsdf_vals, bsdf_pdfs):
-                    if jit or em_active:
+                    if ds is not None and (jit or em_active):
                         bsdf_val = si.to_world_mueller(bsdf_val, -wo, si.wi)
-                        mis_em = dr.select(ds.delta, 1.0, mis_weight(ds.pdf, bsdf_pdf))
+                        # A delta sample is the only one of its emitter (``all``); with
+                        # ``one`` it is one of n_em estimates like the others.
+                        share = 1.0 / n_em if not all_emitters else dr.select(ds.delta, 1.0, 1.0 / n_em)
+                        mis_em = dr.select(ds.delta, 1.0, mis_weight(n_em * ds.pdf, bsdf_pdf)) * share
                         result = dr.select(em_active,
                                            spec_fma(throughput, bsdf_val * em_weight * mis_em, result),
                                            result)
