@@ -82,7 +82,7 @@ def test_sub_texel_footprint_is_the_fibre_level_bsdf():
     ctx = mi.BSDFContext()
     a = np.array(bsdf.eval(ctx, si, mi.Vector3f(*wo.T)))
     # The fibre-level BSDF at the point the footprint BSDF drew in the footprint.
-    xi = np.array(bsdf._hash4(si)[0])
+    xi = np.array(bsdf._hash(si)[0])
     uv_drawn = uv + (2.0 * xi.T - 1.0) * np.array([0.15, 0.1]) / N_TEXELS
     b = np.array(point.eval(ctx, make_si(mi.Vector3f(*wi.T), mi.Point2f(*uv_drawn.T), n), mi.Vector3f(*wo.T)))
     np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
@@ -196,3 +196,27 @@ def test_rank_compressed_directional_sat_matches_brute_force(half):
 def test_direction_rank_must_fit_the_bins():
     with pytest.raises(Exception, match="direction_rank"):
         mi.load_dict(dict(BASE, direction_bins=4, direction_rank=17))
+
+
+def test_direction_bin_pick_follows_the_bilinear_weights():
+    """The footprint eval reads one of the four bins around h, bin j with probability
+    w_j: over a stratified grid of u, each bin's share is its bilinear weight to 1/n, for
+    directions anywhere (edge bins clamp and repeat: their weights add up)."""
+    from mscloth.bsdf.sat_queries import hemisphere_bins, pick_bin
+
+    rng = np.random.default_rng(11)
+    n = 4096
+    for _ in range(5):
+        w = rng.normal(size=3)
+        w[2] = abs(w[2])
+        w /= np.linalg.norm(w)
+        bins, weights = hemisphere_bins(mi.Vector3f(*[mi.Float(np.full(n, c)) for c in w]), 16)
+        u = mi.Float((np.arange(n) + 0.5) / n)
+        chosen = np.asarray(pick_bin(bins, weights, u))
+        expected = {}
+        for b, wt in zip(bins, weights):
+            key = int(np.asarray(b)[0])
+            expected[key] = expected.get(key, 0.0) + float(np.asarray(wt)[0])
+        assert set(np.unique(chosen)) <= set(expected)
+        for key, share in expected.items():
+            assert abs(np.mean(chosen == key) - share) <= 1.0 / n + 1e-6

@@ -33,14 +33,16 @@ def footprint_interaction(n: int, uv, half_texels: float, tile_texels: int, wi):
 
 def footprint_expectation(bsdf, uv, half_texels, tile_texels, wi, wo, n=20000, seed=1):
     """(mean, standard error, footprint used?) of the red channel of the footprint eval
-    over uniformly placed control-variate residual texels and uniform SAT corner rounding."""
+    over uniformly placed control-variate residual texels, uniform SAT corner rounding and
+    direction-bin choice."""
     si = footprint_interaction(n, uv, half_texels, tile_texels, wi)
     enabled = bsdf._enabled(_non_delta_context())
     fr = bsdf._frame(si, True)
     rng = np.random.default_rng(seed)
     xi = mi.Point2f(rng.random(n), rng.random(n))
     xi_round = mi.Point2f(rng.random(n), rng.random(n))
-    st = bsdf._footprint_state(si, fr, enabled, xi, xi_round)
+    u_bin = mi.Float(rng.random(n))
+    st = bsdf._footprint_state(si, fr, enabled, xi, xi_round, u_bin)
     value = bsdf._eval_footprint(fr, st, bsdf._mirror(fr, mi.Vector3f(_unit(wo))), enabled)
     v = np.array(value)[0]
     return float(v.mean()), float(v.std() / np.sqrt(n)), bool(np.array(st["fp"]["use"])[0])

@@ -14,7 +14,7 @@ from ..maps.builtin import resolve_pattern
 from ..scattering import sggx, sheen, spongecake
 from .footprint_data import FootprintData
 from .lobe_calibration import LobeCalibration, measure_ratios
-from .sat_queries import hemisphere_bins
+from .sat_queries import hemisphere_bins, pick_bin
 from .parameters import FLOAT_PARAMETERS, SPECTRUM_PARAMETERS, read_parameters
 
 # Component indices, in the order of ``m_components``.
@@ -446,7 +446,7 @@ def make_cloth_class():
                 pdf += probs[DIFFUSE_TRANSMISSION] * dr.select(up, 0.0, cosine)
             return pdf
 
-        def _footprint_state(self, si, fr, enabled, xi=None, xi_round=None):
+        def _footprint_state(self, si, fr, enabled, xi=None, xi_round=None, u_bin=None):
             """Everything of the footprint that does not depend on the outgoing direction,
             computed once per shading point and shared by eval, pdf and sample: the SAT
             means over the footprint, the control-variate residual texel, the viewer-side
@@ -459,9 +459,9 @@ def make_cloth_class():
             sats = fd.scalar_sats
             fp = self._footprint(si, fr)
             if xi is None:
-                xi, xi_round = self._hash4(si)
-            elif xi_round is None:
-                xi_round = mi.Point2f(0.5, 0.5)
+                xi, xi_round, u_bin = self._hash(si)
+            xi_round = mi.Point2f(0.5, 0.5) if xi_round is None else xi_round
+            u_bin = mi.Float(0.5) if u_bin is None else u_bin
             # Every SAT of the footprint is read at corners rounded stochastically to whole
             # texels (unbiased; one read per corner and channel instead of four: these reads
             # dominate the cost). The exact area normalises, so means stay unbiased.
@@ -471,7 +471,7 @@ def make_cloth_class():
             def mean(channel):
                 return sats.integral(q, channel) * inv_area
 
-            st = dict(fp=fp, q=q, inv_area=inv_area)
+            st = dict(fp=fp, q=q, inv_area=inv_area, u_bin=u_bin)
             st["yarn_mean"] = yarn_mean = mean(fd.GAP)
             inv_yarn = dr.select(yarn_mean > 1e-6, dr.rcp(yarn_mean), 0.0)
             if self.uniform_yarn_albedo is not None:
@@ -553,10 +553,13 @@ def make_cloth_class():
                 # z, so a viewer below looks up the mirror image of h (then folded up again).
                 h_table = mi.Vector3f(h.x, h.y, fr["sign"] * h.z)
                 h_table = dr.select(h_table.z < 0.0, -h_table, h_table)
-                bins, weights = hemisphere_bins(h_table, fd.dr)
-                # Channels of the directional SAT and their weights: the four bins, or
-                # for the rank-K table its K coefficients with the bins' basis rows.
-                channels = fd.direction_channels(bins, weights)
+                # One of the four bins around h, picked with its bilinear weight: the
+                # expected lookup is the bilinear one, at a quarter of the reads (these
+                # reads dominate the cost of an evaluation).
+                bin_h = pick_bin(*hemisphere_bins(h_table, fd.dr), st["u_bin"])
+                # Channels of the directional SAT and their weights: the bin itself, or
+                # for the rank-K table its K coefficients with the bin's basis row.
+                channels = fd.direction_channels([bin_h], [1.0])
                 d_yarn = mi.Float(0.0)  # mean over P of D(h, t) I
                 for ch, wt in channels:
                     d_yarn += wt * fd.d_sat.integral(st["q"], ch)
@@ -651,12 +654,13 @@ def make_cloth_class():
             eps_side = dr.select(wo.z > 0.0, eps_c - eps_lower, eps_lower)
             return dr.select(valid, (1.0 - eps_c) * pdf + eps_side * dr.abs(wo.z) * dr.inv_pi, 0.0)
 
-        def _hash4(self, si):
-            """Four deterministic pseudo-random numbers per shading point (two 2D points,
-            from si.uv and si.p): the stratified texels and the SAT rounding of the
-            footprint, or the point in a sub-texel footprint, in eval(), where Mitsuba
-            passes no random numbers. si.p varies between the samples of one pixel, whose
-            footprints ``clothpath`` centres on the same uv."""
+        def _hash(self, si):
+            """Deterministic pseudo-random numbers per shading point, from si.uv and si.p:
+            (xi, xi_round, u_bin), two 2D points and one number: the stratified texels, the
+            SAT rounding and the direction-bin choice of the footprint (or xi: the point in
+            a sub-texel footprint), in eval(), where Mitsuba passes no random numbers. si.p
+            varies between the samples of one pixel, whose footprints ``clothpath`` centres
+            on the same uv."""
             def bits(x):  # 24 well-mixed bits of a float's fractional part
                 return mi.UInt32((x - dr.floor(x)) * 16777216.0)
 
@@ -664,12 +668,13 @@ def make_cloth_class():
             b = bits(si.uv.y * 991.0 + si.uv.x * 37.0 + si.p.y * 1.414 + si.p.z * 0.318)
             v0, v1 = mi.sample_tea_32(a, b)
             v2, v3 = mi.sample_tea_32(v0, v1)
+            v4, _ = mi.sample_tea_32(v2, v3)
             scale = 1.0 / 16777216.0
 
             def unit(v):  # 24 bits -> [0, 1)
                 return mi.Float(v >> 8) * scale
 
-            return mi.Point2f(unit(v0), unit(v1)), mi.Point2f(unit(v2), unit(v3))
+            return mi.Point2f(unit(v0), unit(v1)), mi.Point2f(unit(v2), unit(v3)), unit(v4)
 
         def _mirror(self, fr, wo):
             return mi.Vector3f(wo.x, wo.y, fr["sign"] * wo.z)
@@ -718,7 +723,7 @@ def make_cloth_class():
             it), for the mirrored directions ``wos`` and, if given, one sample."""
             x, y = fr["x"], fr["y"]
             if fp is not None:
-                xi, _ = self._hash4(si)
+                xi = self._hash(si)[0]
                 x = x + (2.0 * xi.x - 1.0) * fp["sub_x"]
                 y = y + (2.0 * xi.y - 1.0) * fp["sub_y"]
             pt = self._texel(fr, x, y)
