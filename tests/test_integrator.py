@@ -606,7 +606,30 @@ def test_pixel_centre_offset_recovers_the_film_position():
     assert not np.any(np.array(ok))
 
 
-def test_footprint_bsdfs_see_the_pixel_centre_at_the_first_hit():
+def test_orthographic_centre_offset_recovers_the_film_position():
+    """The same for an orthographic camera (rotated, scaled, a crop window): from the ray
+    origin, the corner ray's origin and the whole-pixel differentials."""
+    sensor = mi.load_dict({"type": "orthographic",
+                           "to_world": mi.ScalarTransform4f().look_at(origin=[0.3, 1, 4], target=[0, 0.5, 0],
+                                                                      up=[0, 1, 0]) @ mi.ScalarTransform4f().scale([2, 2, 1]),
+                           "film": {"type": "hdrfilm", "width": 16, "height": 9, "crop_offset_x": 3,
+                                    "crop_offset_y": 2, "crop_width": 10, "crop_height": 6,
+                                    "rfilter": {"type": "box"}}})
+    rng = np.random.default_rng(5)
+    n = 1000
+    px, py = rng.integers(0, 10, n), rng.integers(0, 6, n)
+    fx, fy = rng.uniform(0.02, 0.98, n), rng.uniform(0.02, 0.98, n)
+    ray, _ = sensor.sample_ray_differential(0.0, 0.5, mi.Point2f((px + fx) / 10.0, (py + fy) / 6.0),
+                                            mi.Point2f(0.5, 0.5))
+    corner, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(0.0, 0.0), mi.Point2f(0.5, 0.5))
+    ox, oy, ok = fp.orthographic_centre_offset(ray.o, corner.o, ray.o_x - ray.o, ray.o_y - ray.o)
+    assert np.all(np.array(ok))
+    np.testing.assert_allclose(np.array(ox), fx - 0.5, atol=2e-4)
+    np.testing.assert_allclose(np.array(oy), fy - 0.5, atol=2e-4)
+
+
+@pytest.mark.parametrize("camera", ["perspective", "orthographic"])
+def test_footprint_bsdfs_see_the_pixel_centre_at_the_first_hit(camera):
     """A BSDF with eval_pdf_sample_n and footprint_shading gets the uv of the pixel centre at
     the first hit: every sample of a pixel reports the same uv, the centre's."""
     seen = {}
@@ -639,11 +662,15 @@ def test_footprint_bsdfs_see_the_pixel_centre_at_the_first_hit():
             return mi.Color3f(0.0), mi.Float(0.0)
 
     mi.register_bsdf("uv_probe", lambda props: Probe(props))
+    look = mi.ScalarTransform4f().look_at(origin=[0, 0, 3], target=[0, 0, 0], up=[0, 1, 0])
+    t = np.tan(np.radians(15.0)) * 3.0  # half-width of the view at the plane
+    sensor = {"type": "perspective", "fov": 30, "to_world": look}
+    if camera == "orthographic":
+        sensor = {"type": "orthographic", "to_world": look @ mi.ScalarTransform4f().scale([t, t, 1])}
+    sensor.update({"film": {"type": "hdrfilm", "width": 8, "height": 8, "rfilter": {"type": "box"}},
+                   "sampler": {"type": "independent"}})
     scene = {"type": "scene", "integrator": {"type": "clothpath", "max_depth": 2},
-             "sensor": {"type": "perspective", "fov": 30,
-                        "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 3], target=[0, 0, 0], up=[0, 1, 0]),
-                        "film": {"type": "hdrfilm", "width": 8, "height": 8, "rfilter": {"type": "box"}},
-                        "sampler": {"type": "independent"}},
+             "sensor": sensor,
              "plane": {"type": "rectangle", "bsdf": {"type": "uv_probe"}},
              # Radiance 1 from the camera's side: the emitter sample returns the probe's value.
              "light": {"type": "directional", "direction": [0, 0, -1], "irradiance": 1.0}}
@@ -651,7 +678,6 @@ def test_footprint_bsdfs_see_the_pixel_centre_at_the_first_hit():
     ours = render(mi.load_dict(scene), 64, seed=1)
     # Reference: the uv of each pixel centre, by rendering with the same camera through
     # 1 spp at the pixel centres is not possible, so compare with the plane's analytic uv.
-    t = np.tan(np.radians(15.0)) * 3.0  # half-width of the view at the plane
     centres = (np.arange(8) + 0.5) / 8.0
     u = 0.5 + (centres - 0.5) * t  # rectangle: uv = (x + 1) / 2 over [-1, 1]
     v = 0.5 + (0.5 - centres) * t

@@ -27,7 +27,7 @@ the scene).
 * first hit: the camera's ray differentials, rescaled to the whole pixel (Mitsuba scales
   them by 1/sqrt(spp)), intersected with the tangent plane; BSDFs that shade whole
   footprints (``footprint_shading``: multi-scale ``cloth``) get the uv of the pixel centre
-  (perspective cameras), so a pixel is its footprint's average;
+  (perspective and orthographic cameras), so a pixel is its footprint's average;
 * later hits: a ray cone whose width grows with distance and whose spread grows at each
   non-delta bounce by 2/sqrt(pi pdf) (see :mod:`mscloth.integrators.footprint`).
 
@@ -249,17 +249,9 @@ def make_clothpath_class():
             all_emitters = self.emitter_sampling == "all" and (len(emitters) > 1 or env_by_bsdf)
             n_em = self.emitter_samples
             gaps = gap_shadows.has_gap_transmission(scene)
-            # The perspective camera these rays come from (their lines pass through its
-            # centre of projection; ray origins sit on the near plane), for pixel centres.
-            camera, from_camera = None, False
-            if has_diff:
-                for sensor in scene.sensors():
-                    if sensor.class_name() == "PerspectiveCamera":
-                        origin = mi.Point3f(sensor.world_transform().translation())
-                        miss = dr.norm(dr.cross(origin - ray_d.o, dr.normalize(ray_d.d)))
-                        camera = sensor
-                        from_camera = miss <= 1e-5 * (1.0 + dr.norm(origin))
-                        break
+            # Offsets of camera samples from their pixel centres (perspective and
+            # orthographic cameras), for footprint-shading BSDFs.
+            centring = fp.pixel_centring(scene, ray_d) if has_diff else None
 
             ray = mi.Ray3f(ray_d)
             pi = scene.ray_intersect_preliminary(ray, coherent=True, active=active)
@@ -359,10 +351,10 @@ def make_clothpath_class():
                 sample_2 = sampler.next_2d()
                 wos = [e[3] for e in em_samples]
                 si_centred = si
-                if camera is not None:
+                if centring is not None:
                     # Footprint-aware BSDFs see the pixel centre's uv at the first hit.
                     si_centred = mi.SurfaceInteraction3f(si)
-                    ox, oy, centre_ok = fp.pixel_centre_offset(camera, si.p, first & from_camera & si.is_valid())
+                    ox, oy, centre_ok = centring(si.p, first & si.is_valid())
                     centre = fp.centred_uv(si.uv, si.duv_dx, si.duv_dy, ox, oy)
                     si_centred.uv = dr.select(centre_ok, centre, si.uv)
                 if jit:

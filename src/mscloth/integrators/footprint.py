@@ -259,6 +259,47 @@ def pixel_centre_offset(sensor, p, active=True):
     return fx - 0.5, fy - 0.5, valid
 
 
+def orthographic_centre_offset(o, corner, step_x, step_y, active=True):
+    """(ox, oy, valid): the offset in pixels, each in [-1/2, 1/2), of an orthographic
+    camera ray with origin ``o`` from its pixel's centre. The origins are affine in the film
+    position, o = corner + px step_x + py step_y, with (px, py) in pixels from the crop
+    window's corner, ``corner`` the origin there and ``step_x``, ``step_y`` (orthogonal) the
+    origins' offsets per pixel: the whole-pixel ray differentials o_x - o, o_y - o."""
+    rel = o - corner
+    nx = dr.squared_norm(step_x)
+    ny = dr.squared_norm(step_y)
+    valid = active & (nx > 0.0) & (ny > 0.0)
+    px = dr.dot(rel, step_x) / dr.select(valid, nx, 1.0)
+    py = dr.dot(rel, step_y) / dr.select(valid, ny, 1.0)
+    valid &= dr.isfinite(px) & dr.isfinite(py)
+    return px - dr.floor(px) - 0.5, py - dr.floor(py) - 0.5, valid
+
+
+def pixel_centring(scene, ray):
+    """For camera rays ``ray`` (whole-pixel differentials): a function (p, active) ->
+    (ox, oy, valid) giving each lane's offset from its pixel centre (``p``: the point the ray
+    hits), for the scene's perspective or orthographic camera; lanes whose ray does not come
+    from that camera are not valid. None when the scene has neither."""
+    for sensor in scene.sensors():
+        name = sensor.class_name()
+        d = dr.normalize(ray.d)
+        if name == "PerspectiveCamera":
+            # Camera rays' lines pass through the centre of projection.
+            origin = mi.Point3f(sensor.world_transform().translation())
+            from_camera = dr.norm(dr.cross(origin - ray.o, d)) <= 1e-5 * (1.0 + dr.norm(origin))
+            return lambda p, active: pixel_centre_offset(sensor, p, active & from_camera)
+        if name == "OrthographicCamera":
+            # Camera rays run along the view axis; Mitsuba 3.9.1's orthographic camera has
+            # no sample_direction, so invert its (affine) film-to-origin map instead.
+            forward = dr.normalize(sensor.world_transform() @ mi.Vector3f(0.0, 0.0, 1.0))
+            from_camera = dr.norm(dr.cross(mi.Vector3f(forward), d)) <= 1e-5
+            corner_ray, _ = sensor.sample_ray(0.0, 0.5, mi.Point2f(0.0, 0.0), mi.Point2f(0.5, 0.5))
+            o, step_x, step_y = ray.o, ray.o_x - ray.o, ray.o_y - ray.o
+            return lambda p, active: orthographic_centre_offset(o, corner_ray.o, step_x, step_y,
+                                                                active & from_camera)
+    return None
+
+
 def centred_uv(uv, duv_dx, duv_dy, ox, oy):
     """uv of the pixel centre from a sample's uv and its offset (ox, oy) in pixels."""
     return uv - duv_dx * ox - duv_dy * oy
