@@ -145,8 +145,10 @@ def bench_ccv_bias() -> list[tuple]:
     return rows
 
 
-#: `make bench`'s comparison setting: small enough for ~1 minute per scene on 2 cores.
-COMPARE_RES, COMPARE_BUDGET = (160, 90), 60.0
+#: `make bench`'s comparison setting: `mscloth compare`'s default resolution, ~1 minute per
+#: scene on 2 cores. (At 160x90 the multi-scale BSDF's fixed cost per render call, mostly
+#: tracing the kernel in Python, ~25 ms, was half of its time at 16 spp.)
+COMPARE_RES, COMPARE_BUDGET = (320, 180), 60.0
 
 
 def bench_compare() -> list[tuple[str, dict]]:
