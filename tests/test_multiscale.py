@@ -164,7 +164,7 @@ def test_parallax_shifts_the_lookup_to_the_table_offset():
     shifted = mi.load_dict(dict(params, parallax=True))
     plain_bsdf = mi.load_dict(params)
     tables = load_or_build(resolve_pattern("plain"), BASE["roughness"], dr=16, dv=8, clusters=8,
-                           per_cluster_sat=False)
+                           per_cluster_sat=False, parallax=True)
     wi = bin_centres(8)[10]  # a bin centre: the bilinear lookup returns that bin exactly
     assert wi[2] < 0.9       # oblique enough for a real offset
     r, c = 40, 70

@@ -114,7 +114,7 @@ def maps_rect():
 @pytest.fixture(scope="module")
 def tables_sq(maps_sq):
     return build_tables(maps_sq, 0.3, dr=8, dv=4, clusters=4, per_cluster_sat=True,
-                        progress=False)
+                        parallax=True, progress=False)
 
 
 @pytest.fixture(scope="module")
@@ -703,11 +703,13 @@ def test_memory_report_and_summary(tables_sq, tables_rect):
     assert "MiB" in text and "total" in text and "d_sat" in text
     assert f"{sum(rep.values()) / 2**20:.2f}" in text
     assert tables_rect.d_sat.shape == (36, 25, 37)
-    assert tables_rect.parallax.shape == (24, 36, 9, 2)
+    # The parallax table only when asked for (the cache key knows the difference).
+    assert tables_rect.parallax is None and "parallax" not in tables_rect.memory_report()
+    assert tables_sq.parallax.shape == (32, 32, 16, 2) and "parallax" in rep
 
 
 def test_build_reports_progress_on_stderr(maps_sq, capsys):
-    build_tables(maps_sq, 0.3, dr=4, dv=2, clusters=2)
+    build_tables(maps_sq, 0.3, dr=4, dv=2, clusters=2, parallax=True)
     err = capsys.readouterr().err
     assert "building directional SAT" in err and "bins" in err
     assert "visibility" in err and "parallax" in err and "MiB" in err
@@ -772,9 +774,9 @@ def test_cache_key_changes_with_every_parameter(maps_sq, maps_rect, tmp_path):
     keys = {table_key(maps_sq, base), table_key(maps_rect, base)}
     for change in [dict(dr=5), dict(dv=3), dict(clusters=3), dict(per_cluster_sat=True),
                    dict(seed=1), dict(iters=7), dict(max_step=0.25), dict(vis_eps=1e-3),
-                   dict(fast_visibility=True), dict(d_rank=4)]:
+                   dict(fast_visibility=True), dict(d_rank=4), dict(parallax=True)]:
         keys.add(table_key(maps_sq, tables_mod._params(0.3, **{**dict(dr=4, dv=2, clusters=2), **change})))
-    assert len(keys) == 12
+    assert len(keys) == 13
 
 
 def _corrupt_middle(path):
@@ -800,7 +802,7 @@ def test_bad_cache_is_rebuilt_with_a_warning(maps_sq, tmp_path, damage):
         if damage == "checksum":
             js["arrays"]["visibility"]["sha256"] = "0" * 64
         else:
-            js["arrays"]["parallax"]["shape"] = [1, 2, 3]
+            js["arrays"]["cluster_vis"]["shape"] = [1, 2, 3]
         side.write_text(json.dumps(js))
     elif damage == "no_sidecar":
         side.unlink()

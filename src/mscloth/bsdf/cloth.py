@@ -224,7 +224,7 @@ def make_cloth_class():
 
                 tables = load_or_build(self.maps, p.roughness, dr=p.direction_bins, dv=p.visibility_bins,
                                        clusters=p.clusters, per_cluster_sat=p.unbiased_ccv,
-                                       d_rank=p.direction_rank)
+                                       d_rank=p.direction_rank, parallax=p.parallax)
                 self.footprint_data = FootprintData(tables, with_sats=p.multiscale, with_parallax=p.parallax)
 
             flags = 0

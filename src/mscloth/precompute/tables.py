@@ -25,7 +25,7 @@ visibility             uint8 (H, W, dv*dv): 255 = the ray from the texel along b
 visibility_back        the same for the mirrored field (bin b = direction (wx, wy, -wz))
 cluster_id             int8 (H, W), -1 in gaps: k-means of the front visibility vectors
 cluster_vis / _back    float32 (clusters, dv*dv): mean of visibility/255 over each cluster
-parallax               float32 (H, W, dv*dv, 2): texel offset (dx, dy) of the first hit of the
+parallax               optional float32 (H, W, dv*dv, 2): texel offset (dx, dy) of the first hit of the
                        view ray entering above the texel at max height (viewer bin b)
 =====================  =====================================================================
 
@@ -99,7 +99,7 @@ class MultiscaleTables:
     cluster_id: np.ndarray
     cluster_vis: np.ndarray
     cluster_vis_back: np.ndarray
-    parallax: np.ndarray
+    parallax: np.ndarray | None = None
     d_sat_cluster: np.ndarray | None = None
     d_cluster_mean: np.ndarray | None = None
     d_basis: np.ndarray | None = None
@@ -187,7 +187,7 @@ def _int_param(name, value, lo, hi):
 
 
 def _params(roughness, dr=16, dv=8, clusters=8, per_cluster_sat=False, seed=0, iters=30,
-            max_step=0.5, vis_eps=1e-4, fast_visibility=False, d_rank=0) -> dict:
+            max_step=0.5, vis_eps=1e-4, fast_visibility=False, d_rank=0, parallax=False) -> dict:
     try:
         alpha = float(roughness)
     except (TypeError, ValueError):
@@ -215,6 +215,7 @@ def _params(roughness, dr=16, dv=8, clusters=8, per_cluster_sat=False, seed=0, i
         "max_step": step,
         "vis_eps": eps,
         "fast_visibility": bool(fast_visibility),
+        "parallax": bool(parallax),
     }
 
 
@@ -256,8 +257,8 @@ def _sat_parallel(n_channels, H, W, produce, workers, progress_cb, chunk, out=No
 def build_tables(maps, roughness, dr: int = 16, dv: int = 8, clusters: int = 8,
                  per_cluster_sat: bool = False, progress: bool = True, *, seed: int = 0,
                  iters: int = 30, max_step: float = 0.5, vis_eps: float = 1e-4,
-                 fast_visibility: bool = False, d_rank: int = 0, workers: int | None = None
-                 ) -> MultiscaleTables:
+                 fast_visibility: bool = False, d_rank: int = 0, parallax: bool = False,
+                 workers: int | None = None) -> MultiscaleTables:
     """Build every table of :class:`MultiscaleTables` for ``maps`` (a ClothMaps).
 
     roughness: fibre SGGX alpha in (0, 1]. dr: h bins per side of the directional SAT.
@@ -269,10 +270,12 @@ def build_tables(maps, roughness, dr: int = 16, dv: int = 8, clusters: int = 8,
     :func:`mscloth.precompute._march.escape_mask`; 3-8x faster, 0.02 % of entries differ on
     the plain weave). d_rank: 0 for the full directional SAT (dr*dr channels), K > 0 for
     its rank-K compression (K channels plus a dr*dr x K basis, see :func:`_d_basis`).
+    parallax: also build the parallax table (a quarter of the build time and, at dr = 32, more
+    memory than everything but the directional SAT; only the ``parallax`` option reads it).
     workers: threads (default: CPUs, <= 8).
     """
     params = _params(roughness, dr, dv, clusters, per_cluster_sat, seed, iters, max_step,
-                     vis_eps, fast_visibility, d_rank)
+                     vis_eps, fast_visibility, d_rank, parallax)
     key = table_key(maps, params)
     prog = Progress(progress)
     t_start = time.perf_counter()
@@ -392,11 +395,13 @@ def build_tables(maps, roughness, dr: int = 16, dv: int = 8, clusters: int = 8,
         timings["d_sat_cluster"] = time.perf_counter() - t0
 
     # Parallax.
-    t0 = time.perf_counter()
-    parallax = parallax_table(height, dv, pitch=pitch, max_step=params["max_step"],
-                              workers=workers,
-                              progress=lambda d, n: prog("parallax", d, n, "directions"))
-    timings["parallax"] = time.perf_counter() - t0
+    parallax = None
+    if params["parallax"]:
+        t0 = time.perf_counter()
+        parallax = parallax_table(height, dv, pitch=pitch, max_step=params["max_step"],
+                                  workers=workers,
+                                  progress=lambda d, n: prog("parallax", d, n, "directions"))
+        timings["parallax"] = time.perf_counter() - t0
 
     total = time.perf_counter() - t_start
     info = dict(params)
@@ -453,8 +458,10 @@ def _expected_shapes(params: dict, shape) -> dict:
         "cluster_sat": ((k,) + sat, "float32"), "cluster_mean": ((k,), "float64"),
         "visibility": ((H, W, D), "uint8"), "visibility_back": ((H, W, D), "uint8"),
         "cluster_id": ((H, W), "int8"), "cluster_vis": ((k, D), "float32"),
-        "cluster_vis_back": ((k, D), "float32"), "parallax": ((H, W, D, 2), "float32"),
+        "cluster_vis_back": ((k, D), "float32"),
     }
+    if params.get("parallax"):
+        exp["parallax"] = ((H, W, D, 2), "float32")
     if params["per_cluster_sat"]:
         exp["d_sat_cluster"] = ((k, Bd) + sat, "float32")
         exp["d_cluster_mean"] = ((k, Bd), "float64")
