@@ -557,13 +557,7 @@ def make_cloth_class():
                 # expected lookup is the bilinear one, at a quarter of the reads (these
                 # reads dominate the cost of an evaluation).
                 bin_h = pick_bin(*hemisphere_bins(h_table, fd.dr), st["u_bin"])
-                # Channels of the directional SAT and their weights: the bin itself, or
-                # for the rank-K table its K coefficients with the bin's basis row.
-                channels = fd.direction_channels([bin_h], [1.0])
-                d_yarn = mi.Float(0.0)  # mean over P of D(h, t) I
-                for ch, wt in channels:
-                    d_yarn += wt * fd.d_sat.integral(st["q"], ch)
-                d_yarn *= st["inv_area"]
+                d_yarn = fd.d_integral(st["q"], bin_h) * st["inv_area"]  # mean over P of D(h, t) I
                 # f_rs per unit D: G of the footprint's mean SGGX matrix (g_bar), and of each
                 # residual texel's own tangent (g_k). The residual corrects mean(D) g_bar
                 # towards mean(D g), which differ where D and the tangent correlate (grazing
@@ -578,12 +572,8 @@ def make_cloth_class():
                 if self.use_visibility:
                     if fd.per_cluster:
                         base = mi.Float(0.0)
-                        n_channels = fd.d_sat.channels
                         for c in range(fd.clusters):
-                            d_c = mi.Float(0.0)
-                            for ch, wt in channels:
-                                d_c += wt * fd.d_sat_cluster.integral(st["q"], c * n_channels + ch)
-                            base += st["cvis_i"][c] * cvis_o[c] * d_c
+                            base += st["cvis_i"][c] * cvis_o[c] * fd.d_integral(st["q"], bin_h, c)
                         base *= st["inv_area"]
                     else:
                         base = d_yarn * 0.25 * (vbar_p[0] + vbar_p[1] + vbar_p[2] + vbar_p[3])

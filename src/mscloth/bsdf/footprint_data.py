@@ -7,7 +7,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .sat_queries import ResidualSATs, flat_array, gather, hemisphere_bins
+from .sat_queries import ResidualSATs, flat_array, gather, gather_block, hemisphere_bins
 
 
 class FootprintData:
@@ -49,19 +49,21 @@ class FootprintData:
                 self.d_sat_cluster = ResidualSATs(np.asarray(tables.d_sat_cluster).reshape(k * b, self.H + 1, self.W + 1),
                                                   np.ravel(tables.d_cluster_mean))
 
-    def direction_channels(self, bins, weights):
-        """[(channel, weight)] of the directional SAT whose weighted sum is the bilinear
-        mix of the four half-vector ``bins``: the bins themselves, or with a rank-K table
-        the K coefficient channels weighted by the bins' basis rows."""
+    def d_integral(self, q, bin_h, cluster=None):
+        """The integral of D(h_b, t) I over query ``q``'s rectangle for direction bin
+        ``bin_h``: one channel of the directional SAT, or for the rank-K table its K
+        coefficient channels weighted by the bin's basis row. ``cluster``: over that
+        visibility cluster's texels only (the per-cluster tables)."""
+        sats = self.d_sat if cluster is None else self.d_sat_cluster
+        offset = 0 if cluster is None else cluster * self.d_sat.channels
         if not self.d_rank:
-            return list(zip(bins, weights))
+            return sats.integral(q, offset + bin_h)
         K = self.d_rank
-        coef = [mi.Float(0.0) for _ in range(K)]
-        for b, wt in zip(bins, weights):
-            row = b * K
-            for k in range(K):
-                coef[k] += wt * gather(self.d_basis, row + k)
-        return [(k, coef[k]) for k in range(K)]
+        coef = gather_block(self.d_basis, bin_h * K, K)
+        total = mi.Float(0.0)
+        for c, v in zip(coef, sats.integrals(q, offset, K)):
+            total += c * v
+        return total
 
     # Channel offsets inside scalar_sats.
     GAP, ALBEDO, MOMENTS = 0, 1, 4

@@ -27,6 +27,19 @@ def gather(source, index, active=True):
     return source[int(index)] if active else 0.0
 
 
+def gather_block(source, start, n: int, active=True):
+    """[source[start + j] for j < n] per lane, ``start`` a multiple of 4 when n is: read as
+    packets of four neighbours (one vector load each instead of four gathers)."""
+    if dr.is_jit_v(mi.Float) and n % 4 == 0:
+        out = []
+        first = start // 4
+        for j in range(n // 4):
+            v = dr.gather(mi.Vector4f, source, first + j, active)
+            out += [v.x, v.y, v.z, v.w]
+        return out
+    return [gather(source, start + j, active) for j in range(n)]
+
+
 class RectQuery:
     """The corner geometry of one texel rectangle, computed once and shared by every
     channel read from any :class:`ResidualSATs` of the same tile size.
@@ -94,10 +107,19 @@ class ResidualSATs:
         c.use_row = c.qy != 0.0
         return c
 
+    def _home(self, x0, y0, x1, y1):
+        """The rectangle moved by whole tiles so that (x0, y0) lies in the first tile: the
+        same integral (the tile repeats), small tile counts at the corners (texel coordinates
+        of a finely tiled surface reach 1e5, and qx * col products of that size lost float32
+        precision), and no edge reads for corners inside the first tile."""
+        sx = dr.floor(x0 / float(self.W)) * float(self.W)
+        sy = dr.floor(y0 / float(self.H)) * float(self.H)
+        return x0 - sx, y0 - sy, x1 - sx, y1 - sy
+
     def query(self, x0, y0, x1, y1) -> RectQuery:
         """The corner geometry of the texel rectangle [x0, x1] x [y0, y1] (any size, any
         position: periodic); valid for every table of the same tile size."""
-        return RectQuery(self, x0, y0, x1, y1)
+        return RectQuery(self, *self._home(x0, y0, x1, y1))
 
     def query_rounded(self, x0, y0, x1, y1, xi_x, xi_y) -> RectQuery:
         """The rectangle with its corners rounded stochastically to whole texels:
@@ -107,8 +129,25 @@ class ResidualSATs:
         (independently of y) gives the bilinear weights, so the expected integral is the
         exact one while each corner costs one read instead of four. One xi per axis keeps
         the rounded width within one texel of the true width (less noise)."""
-        return RectQuery(self, dr.floor(x0 + xi_x), dr.floor(y0 + xi_y),
-                         dr.floor(x1 + xi_x), dr.floor(y1 + xi_y), on_grid=True)
+        return RectQuery(self, *self._home(dr.floor(x0 + xi_x), dr.floor(y0 + xi_y),
+                                           dr.floor(x1 + xi_x), dr.floor(y1 + xi_y)), on_grid=True)
+
+    def integrals(self, q: RectQuery, first: int, n: int):
+        """:meth:`integral` of the ``n`` channels from ``first`` on (Python ints), read in
+        packets where the layout allows (a rounded query, channels in whole fours)."""
+        C = self.channels
+        if not (q.on_grid and n % 4 == 0 and first % 4 == 0 and C % 4 == 0):
+            return [self.integral(q, first + j) for j in range(n)]
+        totals = gather_block(self.total, mi.UInt32(first), n)
+        means = gather_block(self.mean, mi.UInt32(first), n)
+        out = [mi.Float(0.0) for _ in range(n)]
+        for sign, c in q.corners:
+            inner = gather_block(self.data, c.cell * C + first, n)
+            col = gather_block(self.last_col, c.iy * C + first, n, c.use_col)
+            row = gather_block(self.last_row, c.ix * C + first, n, c.use_row)
+            for j in range(n):
+                out[j] += sign * (c.qx * c.qy * totals[j] + c.qx * col[j] + c.qy * row[j] + inner[j])
+        return [o + m * q.area for o, m in zip(out, means)]
 
     def integral(self, q: RectQuery, channel):
         """Integral of the original values of ``channel`` (int or per-lane UInt32) over the
