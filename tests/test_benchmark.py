@@ -1,0 +1,27 @@
+"""`make bench`'s report writer: the tables it writes from measured rows (no rendering)."""
+from mscloth.benchmark import write_results
+
+
+def region(speedup, spp_bf_curve):
+    return {"speedup": speedup, "relmse_multiscale": 0.004, "relmse_bruteforce": 0.002,
+            "spp_multiscale": 16, "spp_bruteforce": 64, "seconds_multiscale": 0.12,
+            "seconds_bruteforce": 0.14, "relmse_bruteforce_equal_spp": 0.006,
+            "seconds_bruteforce_equal_spp": 0.04,
+            "curve_bruteforce": [{"spp": s, "relmse": 0.1 / s, "seconds": 0.01 * s} for s in spp_bf_curve]}
+
+
+def test_results_page_has_every_table_and_the_split_of_the_speed_up(tmp_path):
+    out = tmp_path / "RESULTS.md"
+    cost = [("cloth (mscloth, multi-scale)", 2.4, 1.7), ("principled (Mitsuba)", 0.24, 17.0)]
+    compare = [("plane", {g: region(0.4, (1, 16, 256)) for g in ("near", "middle", "far")}),
+               ("sphere", {g: region(0.3, (1, 16, 64)) for g in ("near", "middle", "far")})]
+    write_results(out, "make bench", "llvm_ad_rgb", cost, "256x256, 64 spp", [("plain", 0.4, (1024, 1024))],
+                  1024, table_rows=[(512, 32, 64, 17.0, 115.0, 65.0)],
+                  ccv_rows=[(2.0, [0.6, -0.2, 0.77], [-0.1, 0.7, 0.7], 0.05, -0.01, 0.009, 0.008)],
+                  compare_rows=compare)
+    text = out.read_text()
+    assert "| cloth (mscloth, multi-scale) | 2.400 | 1.70 | 10.00x |" in text
+    assert "| 512x512 | 32 | rank 64 (`direction_rank`) | 17.0 | 115 | 65 |" in text
+    # Brute force at multi-scale's spp and at 256 spp (or a note that the curve stopped short).
+    assert "| plane | near | 0.40x | 16 / 0.0040 / 0.12 | 64 / 0.0020 / 0.14 | 0.0060 / 0.04 | 0.00039 |" in text
+    assert "| sphere | far | 0.30x |" in text and "not reached |" in text
