@@ -131,8 +131,9 @@ def test_footprint_furnace_and_weights():
             np.testing.assert_allclose(np.array(bs.pdf)[ok], np.array(pdf)[ok], rtol=1e-4)
 
 
-def test_no_nan_on_random_and_degenerate_footprints():
-    bsdf = mi.load_dict(BASE)
+@pytest.mark.parametrize("slices", [1, 3])
+def test_no_nan_on_random_and_degenerate_footprints(slices):
+    bsdf = mi.load_dict(dict(BASE, footprint_slices=slices))
     rng = np.random.default_rng(6)
     n = 300_000
     wi = rng.normal(size=(n, 3)); wi /= np.linalg.norm(wi, axis=1, keepdims=True)
@@ -250,3 +251,79 @@ def test_sat_queries_far_from_the_origin_keep_their_precision():
         q3 = sats.query_rounded(mi.Float(X), mi.Float(Y), mi.Float(X + 3), mi.Float(Y + 2), zero, zero)
         for c, packet in enumerate(sats.integrals(q3, 0, 4)):
             np.testing.assert_allclose(np.array(packet), np.array(sats.integral(q3, c)), rtol=1e-6, atol=1e-6)
+
+
+# ---------------------------------------------------------------- sheared footprints (slices)
+def sheared_si(n, uv, a_texels, shear, wi):
+    """A pixel footprint with edges a = (a, 0) and b = (shear * a, a) texels: the parallelogram
+    a perspective camera gives towards the image's sides."""
+    si = validation.footprint_interaction(n, uv, 0.0, N_TEXELS, wi)
+    d = a_texels / N_TEXELS
+    si.duv_dx = mi.Vector2f(d, 0.0)
+    si.duv_dy = mi.Vector2f(shear * d, d)
+    return si
+
+
+@pytest.mark.parametrize("slices", [1, 2, 4])
+def test_footprint_slices_cover_the_pixel_parallelogram(slices):
+    """``footprint_slices`` = K: K equal boxes, together covering the parallelogram of the
+    pixel (every point of it lies in some box), with less area the more there are (K = 1: the
+    bounding box of the convention); an axis-aligned footprint is cut into K exact pieces."""
+    bsdf = mi.load_dict(dict(BASE, footprint_slices=slices))
+    rng = np.random.default_rng(8)
+    uv, a, shear = [0.3, 0.55], 12.0, 0.9
+    si = sheared_si(1, uv, a, shear, [0.2, 0.1, 0.97])
+    fp = bsdf._footprint(si, bsdf._frame(si, True))
+    boxes = np.array([[float(np.asarray(v)[0]) for v in box] for box in fp["boxes"]])  # (K, 4)
+    assert boxes.shape == (slices, 4)
+    c = np.array(uv) * N_TEXELS
+    s, t = rng.random(20000) - 0.5, rng.random(20000) - 0.5
+    pts = c + np.outer(s, [a, 0.0]) + np.outer(t, [shear * a, a])
+    inside = ((pts[:, None, 0] >= boxes[None, :, 0] - 1e-4) & (pts[:, None, 0] <= boxes[None, :, 2] + 1e-4)
+              & (pts[:, None, 1] >= boxes[None, :, 1] - 1e-4) & (pts[:, None, 1] <= boxes[None, :, 3] + 1e-4))
+    assert np.all(inside.any(axis=1))
+    area = float(np.asarray(fp["area"])[0])
+    np.testing.assert_allclose(area, ((boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])).sum(), rtol=1e-5)
+    bounding = (1.0 + shear) * a * a
+    parallelogram = a * a
+    assert parallelogram <= area <= bounding * (1 + 1e-5)
+    assert (slices == 1) == bool(np.isclose(area, bounding, rtol=1e-5))
+    # Axis-aligned: K exact pieces of the rectangle, no overlap.
+    si = sheared_si(1, uv, a, 0.0, [0.2, 0.1, 0.97])
+    fp = bsdf._footprint(si, bsdf._frame(si, True))
+    np.testing.assert_allclose(float(np.asarray(fp["area"])[0]), a * a, rtol=1e-5)
+
+
+@pytest.mark.parametrize("slices", [2, 4])
+def test_sliced_footprint_matches_brute_force_over_its_boxes(slices):
+    """The footprint BSDF over K boxes is the mean of the fibre-level BSDF over their union
+    (boxes equal in size: a box uniformly, then a point uniformly in it), within the same
+    tolerance as square footprints, for a sheared pixel, with visibility."""
+    params = dict(BASE, footprint_slices=slices)
+    bsdf = mi.load_dict(params)
+    point = mi.load_dict(dict(params, multiscale=False))
+    ctx = validation._non_delta_context()
+    uv, a, shear = [0.3, 0.55], 10.0, 0.8
+    for wi, wo in DIRECTIONS[:3]:
+        n = 20000
+        si = sheared_si(n, uv, a, shear, unit(wi))
+        fr = bsdf._frame(si, True)
+        enabled = bsdf._enabled(ctx)
+        rng = np.random.default_rng(12)
+        numbers = (mi.Point2f(rng.random(n), rng.random(n)), mi.Point2f(rng.random(n), rng.random(n)),
+                   mi.Float(rng.random(n)))
+        st = bsdf._footprint_state(si, fr, enabled, *numbers)
+        ms = np.array(bsdf._eval_footprint(fr, st, bsdf._mirror(fr, mi.Vector3f(unit(wo))), enabled))[0]
+        boxes = np.array([[float(np.asarray(v)[0]) for v in box] for box in st["fp"]["boxes"]])
+        m = 200000
+        j = rng.integers(0, slices, m)
+        x = boxes[j, 0] + rng.random(m) * (boxes[j, 2] - boxes[j, 0])
+        y = boxes[j, 1] + rng.random(m) * (boxes[j, 3] - boxes[j, 1])
+        psi = dr.zeros(mi.SurfaceInteraction3f, m)
+        psi.wi = mi.Vector3f(unit(wi))
+        psi.uv = mi.Point2f(x / N_TEXELS, y / N_TEXELS)
+        bf = np.array(point.eval(ctx, psi, mi.Vector3f(unit(wo))))[0]
+        ms_mean, ms_err = ms.mean(), ms.std() / np.sqrt(n)
+        bf_mean, bf_err = bf.mean(), bf.std() / np.sqrt(m)
+        tolerance = 5.0 * np.hypot(ms_err, bf_err) + APPROXIMATION * abs(bf_mean)
+        assert abs(ms_mean - bf_mean) <= tolerance, (wi, wo, ms_mean, bf_mean, tolerance)

@@ -94,7 +94,8 @@ def test_malformed_scene_file(tmp_path):
 
 SWITCHES = [dict(), dict(visibility=False), dict(unbiased_ccv=True), dict(parallax=True),
             dict(direction_rank=24), dict(direction_rank=24, unbiased_ccv=True), dict(sheen_thickness=0.0),
-            dict(specular_albedo=0.0, specular_transmittance=0.0), dict(multiscale=False)]
+            dict(specular_albedo=0.0, specular_transmittance=0.0), dict(multiscale=False),
+            dict(footprint_slices=3, unbiased_ccv=True)]
 
 
 @pytest.mark.parametrize("switches", SWITCHES, ids=lambda d: ",".join(f"{k}={v}" for k, v in d.items()) or "default")

@@ -130,6 +130,14 @@ back side sees the same maps mirrored through the surface.
        K channels and a bins x K basis (PCA of D over the tile); 64 keeps footprint means
        within ~0.5% at roughness 0.3 and cuts a 512^2, dr = 32 table from 1 GiB to 64 MiB,
        at more reads per lookup.
+   * - footprint_slices
+     - integer
+     - 1
+     - Boxes (1-4) covering the pixel's footprint. 1: its axis-aligned bounding box (the
+       footprint convention). K > 1: K boxes, each the bounding box of a 1/K slice of the
+       sheared parallelogram a perspective camera gives away from the image's centre;
+       closer to brute force near the camera (under a low sun, per-pixel deviation 12% ->
+       6% -> 3.5% for 1, 2, 4) for K times the footprint reads (+30%, +70% per sample).
 
 Sampling picks one lobe by an estimate of its albedo, calibrated when the BSDF is built
 against measured lobe albedos (``bsdf/lobe_calibration.py``; JIT variants), and samples it
@@ -167,6 +175,14 @@ def _pick(values, index):
     for c in range(1, len(values)):
         out = dr.select(index == c, values[c], out)
     return out
+
+
+def _sum(values):
+    """The sum of per-lane values (a generator or list)."""
+    total = None
+    for v in values:
+        total = v if total is None else total + v
+    return total
 
 
 def _max_channel(c):
@@ -218,6 +234,7 @@ def make_cloth_class():
             self.footprint_shading = p.multiscale
             self.use_visibility = p.visibility
             self.use_parallax = p.parallax
+            self.footprint_slices = p.footprint_slices
             self.footprint_data = None
             if p.multiscale or p.visibility or p.parallax:
                 from ..precompute.tables import load_or_build
@@ -309,16 +326,35 @@ def make_cloth_class():
             # Sub-texel half-widths, for the fibre-level branch's position in the footprint.
             sub_x = dr.select(use | _not(finite), 0.0, rx)
             sub_y = dr.select(use | _not(finite), 0.0, ry)
+            K = self.footprint_slices
+            centres = [(fr["x"], fr["y"])]
+            if K > 1:
+                # K boxes stacked along one edge of the pixel's parallelogram, each the
+                # bounding box of a 1/K-th slice of it: along whichever edge leaves less
+                # area. An axis-aligned footprint is cut into K exact pieces.
+                (ax, ay), (bx, by) = self._edges_texels(si)
+                rxb, ryb = 0.5 * (dr.abs(ax) + dr.abs(bx) / K), 0.5 * (dr.abs(ay) + dr.abs(by) / K)
+                rxa, rya = 0.5 * (dr.abs(ax) / K + dr.abs(bx)), 0.5 * (dr.abs(ay) / K + dr.abs(by))
+                along_b = rxb * ryb <= rxa * rya
+                rx, ry = dr.select(along_b, rxb, rxa), dr.select(along_b, ryb, rya)
+                step_x = dr.select(use, dr.select(along_b, bx, ax) / K, 0.0)
+                step_y = dr.select(use, dr.select(along_b, by, ay) / K, 0.0)
+                centres = [(fr["x"] + (j + 0.5 - 0.5 * K) * step_x, fr["y"] + (j + 0.5 - 0.5 * K) * step_y)
+                           for j in range(K)]
             rx = dr.select(use, dr.maximum(rx, 0.5), 0.5)
             ry = dr.select(use, dr.maximum(ry, 0.5), 0.5)
-            return dict(use=use, x0=fr["x"] - rx, x1=fr["x"] + rx, y0=fr["y"] - ry, y1=fr["y"] + ry,
-                        area=4.0 * rx * ry, rx=rx, ry=ry, sub_x=sub_x, sub_y=sub_y)
+            boxes = [(cx - rx, cy - ry, cx + rx, cy + ry) for cx, cy in centres]
+            return dict(use=use, boxes=boxes, area=4.0 * K * rx * ry, rx=rx, ry=ry, sub_x=sub_x, sub_y=sub_y)
+
+        def _edges_texels(self, si):
+            """The pixel footprint's edges si.duv_dx, si.duv_dy in texels of this tile."""
+            su, sv = self.uv_scale * self.tile_w, self.uv_scale_v * self.tile_h
+            return (si.duv_dx.x * su, si.duv_dx.y * sv), (si.duv_dy.x * su, si.duv_dy.y * sv)
 
         def _half_widths_texels(self, si):
             """Half-widths in texels of this tile of the footprint in si.duv_dx/dy."""
-            rx = 0.5 * (dr.abs(si.duv_dx.x) + dr.abs(si.duv_dy.x)) * self.uv_scale * self.tile_w
-            ry = 0.5 * (dr.abs(si.duv_dx.y) + dr.abs(si.duv_dy.y)) * self.uv_scale_v * self.tile_h
-            return rx, ry
+            (ax, ay), (bx, by) = self._edges_texels(si)
+            return 0.5 * (dr.abs(ax) + dr.abs(bx)), 0.5 * (dr.abs(ay) + dr.abs(by))
 
         def _enabled(self, ctx):
             return [ctx.is_enabled(lobe_types[c], c) for c in range(6)]
@@ -465,11 +501,11 @@ def make_cloth_class():
             # Every SAT of the footprint is read at corners rounded stochastically to whole
             # texels (unbiased; one read per corner and channel instead of four: these reads
             # dominate the cost). The exact area normalises, so means stay unbiased.
-            q = sats.query_rounded(fp["x0"], fp["y0"], fp["x1"], fp["y1"], xi_round.x, xi_round.y)
+            q = [sats.query_rounded(*box, xi_round.x, xi_round.y) for box in fp["boxes"]]
             inv_area = dr.rcp(fp["area"])
 
             def mean(channel):
-                return sats.integral(q, channel) * inv_area
+                return _sum(sats.integral(q_, channel) for q_ in q) * inv_area
 
             st = dict(fp=fp, q=q, inv_area=inv_area, u_bin=u_bin)
             st["yarn_mean"] = yarn_mean = mean(fd.GAP)
@@ -557,7 +593,7 @@ def make_cloth_class():
                 # expected lookup is the bilinear one, at a quarter of the reads (these
                 # reads dominate the cost of an evaluation).
                 bin_h = pick_bin(*hemisphere_bins(h_table, fd.dr), st["u_bin"])
-                d_yarn = fd.d_integral(st["q"], bin_h) * st["inv_area"]  # mean over P of D(h, t) I
+                d_yarn = _sum(fd.d_integral(q_, bin_h) for q_ in st["q"]) * st["inv_area"]  # mean over P of D I
                 # f_rs per unit D: G of the footprint's mean SGGX matrix (g_bar), and of each
                 # residual texel's own tangent (g_k). The residual corrects mean(D) g_bar
                 # towards mean(D g), which differ where D and the tangent correlate (grazing
@@ -573,7 +609,7 @@ def make_cloth_class():
                     if fd.per_cluster:
                         base = mi.Float(0.0)
                         for c in range(fd.clusters):
-                            base += st["cvis_i"][c] * cvis_o[c] * fd.d_integral(st["q"], bin_h, c)
+                            base += st["cvis_i"][c] * cvis_o[c] * _sum(fd.d_integral(q_, bin_h, c) for q_ in st["q"])
                         base *= st["inv_area"]
                     else:
                         base = d_yarn * 0.25 * (vbar_p[0] + vbar_p[1] + vbar_p[2] + vbar_p[3])
@@ -625,14 +661,24 @@ def make_cloth_class():
         _STRATA = ((0.0, 0.0, 0.0, 0.0), (1.0, 0.0, 0.5, 0.25), (0.0, 1.0, 0.25, 0.75), (1.0, 1.0, 0.75, 0.5))
 
         def _stratified_texels(self, fr, fp, xi):
-            """Four texels, one uniform in each quadrant of the footprint (from ``xi``)."""
+            """Four texels, one uniform in each quadrant of the footprint (from ``xi``). With
+            K boxes (equal in size) the quadrants are those of [0, 1)^2 mapped onto the boxes
+            side by side along x: uniform over their union, as the SAT means are."""
+            boxes = fp["boxes"]
+            K = len(boxes)
             texels = []
             for qx, qy, cx, cy in self._STRATA:
                 sx = xi.x + cx
                 sy = xi.y + cy
-                sx = sx - dr.floor(sx)
-                sy = sy - dr.floor(sy)
-                texels.append(self._texel(fr, fp["x0"] + (qx + sx) * fp["rx"], fp["y0"] + (qy + sy) * fp["ry"]))
+                u = 0.5 * (qx + sx - dr.floor(sx))  # across the boxes, in [0, 1)
+                v = 0.5 * (qy + sy - dr.floor(sy))
+                if K == 1:
+                    x0, y0 = boxes[0][0], boxes[0][1]
+                else:
+                    j = mi.UInt32(dr.minimum(dr.floor(u * K), K - 1))
+                    u = u * K - mi.Float(j)
+                    x0, y0 = _pick([b[0] for b in boxes], j), _pick([b[1] for b in boxes], j)
+                texels.append(self._texel(fr, x0 + 2.0 * u * fp["rx"], y0 + 2.0 * v * fp["ry"]))
             return texels
 
         def _mixture_pdf(self, fr, st, wo, enabled):
@@ -857,8 +903,8 @@ def make_cloth_class():
             if self.multiscale:
                 fp = self._footprint(si, fr)
                 sats = self.footprint_data.scalar_sats
-                q = sats.query(fp["x0"], fp["y0"], fp["x1"], fp["y1"])
-                yarn = dr.select(fp["use"], sats.integral(q, self.footprint_data.GAP) / fp["area"], yarn)
+                covered = _sum(sats.integral(sats.query(*box), self.footprint_data.GAP) for box in fp["boxes"])
+                yarn = dr.select(fp["use"], covered / fp["area"], yarn)
             t_sheen = fr["t_sheen_i"]
             return dr.select(active & (dr.abs(si.wi.z) > spongecake.COS_EPSILON),
                              t_sheen * t_sheen * dr.clip(1.0 - yarn, 0.0, 1.0), 0.0)

@@ -41,6 +41,7 @@ INT_PARAMETERS = {
     "visibility_bins": (8, 2, 32, "direction bins per side of the visibility tables"),
     "clusters": (8, 1, 32, "visibility clusters for the control variates"),
     "direction_rank": (0, 0, 4096, "rank of the compressed directional SAT (0: full, dr^2 channels)"),
+    "footprint_slices": (1, 1, 4, "boxes that cover a sheared pixel footprint (1: its bounding box)"),
 }
 BOOL_PARAMETERS = {
     "multiscale": (True, "shade whole pixel footprints (summed-area tables + CCV)"),
@@ -69,6 +70,7 @@ class ClothParameters:
     visibility_bins: int = 8
     clusters: int = 8
     direction_rank: int = 0
+    footprint_slices: int = 1
 
 
 def _read_float(props, name):
