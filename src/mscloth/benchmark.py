@@ -56,6 +56,7 @@ def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple[str, 
 
         def render():
             dr.eval(mi.render(scene, spp=spp))
+            dr.sync_thread()  # the LLVM backend runs kernels asynchronously: wait for this one
 
         render()  # compile once
         seconds = _best_of(render, repeats)
