@@ -27,11 +27,13 @@ Time. Each curve point is one ``mi.render`` at 1, 2, 4, ... spp with its own see
 ``seconds`` is its wall time (tracing, kernel execution, read-back) minus the time Dr.Jit
 spent compiling kernels during it (``dr.kernel_history``'s codegen + backend times):
 every new spp value compiles a new kernel (a few seconds for the multi-scale BSDF), a
-one-off cost that does not scale with the image. The budget counts these ``seconds``:
-multi-scale gets at most half of it and stops at ``spp_multiscale`` (default 16), brute
-force gets the rest and stops at reference spp / 4 (beyond that the reference's noise
-dominates). A point is only started when twice the previous point's time still fits;
-each curve has at least two points.
+one-off cost that does not scale with the image. Each point is rendered three times with
+the same spp and seed (the same image) and keeps the shortest time: a shared machine only
+adds time, and single timings varied by +-30% between runs. The budget counts all these
+renders: multi-scale gets at most half of it and stops at ``spp_multiscale`` (default 16),
+brute force gets the rest and stops at reference spp / 4 (beyond that the reference's
+noise dominates). A point is only started when three times twice the previous point's
+time still fits; each curve has at least two points.
 
 Speed-up. For each region: the time brute force needs to reach multi-scale's relMSE at
 its chosen spp, read off brute force's relMSE-vs-seconds curve, interpolated linearly in
@@ -377,28 +379,38 @@ def reference_image(name: str, width: int, height: int, spp: int = 1024, quiet: 
 
 # --------------------------------------------------------------------------- curves
 
+#: Renders per curve point for its time (the shortest counts).
+TIMING_REPEATS = 3
+
+
 def convergence_curve(scene, label: str, seed0: int, max_spp: int, budget: float,
-                      evaluate, min_points: int = 2, quiet: bool = False) -> list[dict]:
+                      evaluate, min_points: int = 2, quiet: bool = False, repeats: int = TIMING_REPEATS) -> list[dict]:
     """Render at 1, 2, 4, ... spp (seed0 + k) until ``max_spp`` or ``budget`` seconds are used.
 
     A point is started only while the time spent plus twice the previous point's time fits
     the budget (always at least ``min_points``). ``evaluate(image)`` returns the per-region
-    errors stored with each point.
+    errors stored with each point. Each point is timed ``repeats`` times (the same spp and
+    seed, so the same image) and keeps the shortest: a shared machine only ever adds time.
     """
     points = []
     spent = 0.0
     spp, k = 1, 0
     while spp <= max_spp:
-        if len(points) >= min_points and spent + 2 * points[-1]["seconds"] > budget:
+        if len(points) >= min_points and spent + 2 * repeats * points[-1]["seconds"] > budget:
             break
         r = timed_render(scene, spp, seed0 + k)
         spent += r.seconds
-        point = {"spp": spp, "seed": r.seed, "seconds": r.seconds, "compile_seconds": r.compile_seconds,
+        seconds = r.seconds
+        for _ in range(repeats - 1):
+            again = timed_render(scene, spp, seed0 + k).seconds
+            spent += again
+            seconds = min(seconds, again)
+        point = {"spp": spp, "seed": r.seed, "seconds": seconds, "compile_seconds": r.compile_seconds,
                  **evaluate(r.image), "image": r.image}
         points.append(point)
         if not quiet:
             errs = "  ".join(f"{g} {point['relmse'][g]:.3g}" for g in REGIONS)
-            print(f"  {label:12s} {spp:5d} spp  {r.seconds:7.3f} s (+{r.compile_seconds:.1f} s compile)  "
+            print(f"  {label:12s} {spp:5d} spp  {seconds:7.3f} s (+{r.compile_seconds:.1f} s compile)  "
                   f"relMSE {errs}   [{spent:.2f}/{budget:.2f} s]", flush=True)
         spp, k = spp * 2, k + 1
     return points
