@@ -38,6 +38,8 @@ def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple[str, 
     contenders = {
         "cloth (mscloth, multi-scale)": {},
         f"cloth (multi-scale, direction_rank {BENCH_RANK})": {"direction_rank": BENCH_RANK},
+        # What the height field's shadowing and masking cost (half of a footprint evaluation).
+        "cloth (multi-scale, visibility off)": {"visibility": False},
         "cloth (mscloth, fibre-level)": {"multiscale": False},
         "principled (Mitsuba)": {"type": "principled", "base_color": {"type": "rgb", "value": [0.4, 0.1, 0.1]},
                                  "roughness": 0.4, "sheen": 0.5, "spec_trans": 0.2},
