@@ -7,7 +7,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .sat_queries import ResidualSATs, flat_array, gather, gather_block, hemisphere_bins
+from .sat_queries import (ResidualSATs, flat_array, flat_word_array, gather, gather_block, gather_word,
+                          hemisphere_bins)
 
 
 class FootprintData:
@@ -20,9 +21,18 @@ class FootprintData:
         self.clusters = int(tables.cluster_vis.shape[0])
         self.n_dirs = self.dv * self.dv
         # Front and back visibility back to back: the back half is for the mirrored side.
-        vis = np.stack([tables.visibility, tables.visibility_back]).astype(np.float32) / 255.0
-        self.visibility = flat_array(vis)
-        self.side_stride = self.H * self.W * self.n_dirs
+        # Each entry says whether the ray along a bin's centre escapes (0 or 255), so a
+        # texel's directions pack into bits: 32x less memory than floats (1 MiB for a 256^2
+        # tile at 8x8 bins), which keeps the per-texel lookups of every evaluation in cache.
+        vis = np.stack([tables.visibility, tables.visibility_back])
+        if not np.all((vis == 0) | (vis == 255)):
+            raise ValueError("FootprintData: visibility tables must hold 0 or 255 (escape or hit)")
+        bits = np.packbits(vis.reshape(-1, self.n_dirs) == 255, axis=-1, bitorder="little")
+        self.words_per_texel = (self.n_dirs + 31) // 32
+        padded = np.zeros((bits.shape[0], 4 * self.words_per_texel), dtype=np.uint8)
+        padded[:, :bits.shape[1]] = bits
+        self.visibility = flat_word_array(padded.view("<u4"))
+        self.side_stride = self.H * self.W * self.words_per_texel
         # (side, direction, cluster): the clusters of one direction bin are contiguous.
         cvis = np.stack([tables.cluster_vis, tables.cluster_vis_back]).astype(np.float32)
         self.cluster_vis = flat_array(np.moveaxis(cvis, 1, 2))
@@ -74,10 +84,11 @@ class FootprintData:
         """V(p, w) of texel (ix, iy) for an upper-hemisphere direction ``w`` of the front
         (back=False) or mirrored back (back=True) height field, bilinear over direction bins."""
         bins, weights = hemisphere_bins(w, self.dv)
-        base = dr.select(back, mi.UInt32(self.side_stride), mi.UInt32(0)) + (iy * self.W + ix) * self.n_dirs
+        base = dr.select(back, mi.UInt32(self.side_stride), mi.UInt32(0)) + (iy * self.W + ix) * self.words_per_texel
         v = mi.Float(0.0)
         for b, wt in zip(bins, weights):
-            v += wt * gather(self.visibility, base + b)
+            word = gather_word(self.visibility, base + (b >> 5))
+            v += dr.select(((word >> (b & 31)) & 1) != 0, wt, 0.0)
         return v
 
     def cluster_visibilities(self, w, back):

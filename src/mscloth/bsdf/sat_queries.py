@@ -27,6 +27,21 @@ def gather(source, index, active=True):
     return source[int(index)] if active else 0.0
 
 
+def flat_word_array(values: np.ndarray):
+    """A flat uint32 array of ``values`` for :func:`gather_word`."""
+    values = np.ascontiguousarray(np.asarray(values, dtype=np.uint32).ravel())
+    if dr.is_jit_v(mi.Float):
+        return mi.UInt32(values)
+    return values
+
+
+def gather_word(source, index, active=True):
+    """``source[index]`` of a :func:`flat_word_array` per lane (0 where not ``active``)."""
+    if dr.is_jit_v(mi.Float):
+        return dr.gather(mi.UInt32, source, index, active)
+    return int(source[int(index)]) if active else 0
+
+
 def gather_block(source, start, n: int, active=True):
     """[source[start + j] for j < n] per lane, ``start`` a multiple of 4 when n is: read as
     packets of four neighbours (one vector load each instead of four gathers)."""
