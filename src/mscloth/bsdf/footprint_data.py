@@ -46,9 +46,12 @@ class FootprintData:
             # gap, albedo (3), moments (6), cluster histogram (k): one buffer, channel offsets.
             sats = [tables.gap_sat, tables.albedo_sat, tables.moment_sat, tables.cluster_sat]
             means = [tables.gap_mean, tables.albedo_mean, tables.moment_mean, tables.cluster_mean]
-            self.scalar_sats = ResidualSATs(np.concatenate([np.asarray(s).reshape(-1, self.H + 1, self.W + 1)
-                                                            for s in sats]),
-                                            np.concatenate([np.ravel(m) for m in means]))
+            sats = np.concatenate([np.asarray(s).reshape(-1, self.H + 1, self.W + 1) for s in sats])
+            means = np.concatenate([np.ravel(m) for m in means])
+            # Zero channels up to a multiple of four: a footprint reads them all in packets.
+            pad = -len(sats) % 4
+            self.scalar_sats = ResidualSATs(np.concatenate([sats, np.zeros((pad,) + sats.shape[1:], sats.dtype)]),
+                                            np.concatenate([means, np.zeros(pad)]))
             # Rank-K compression: K coefficient channels and a (bins x K) basis.
             basis = getattr(tables, "d_basis", None)
             self.d_rank = 0 if basis is None else int(basis.shape[1])
