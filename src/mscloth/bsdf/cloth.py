@@ -488,9 +488,9 @@ def make_cloth_class():
             means over the footprint, the control-variate residual texel, the viewer-side
             visibilities and the sampling mixture.
 
-            ``xi`` (2D in [0,1)) places the residual texels and ``xi_round`` rounds the
-            SATs' corners; by default both are a hash of (si.uv, si.p), so eval is a
-            deterministic function of (si, wo)."""
+            ``xi`` (2D in [0,1)) places the residual texels, ``xi_round`` rounds the SATs'
+            corners and ``u_bin`` picks the direction bin of D; by default all three are a
+            hash of (si.uv, si.p), so eval is a deterministic function of (si, wo)."""
             fd = self.footprint_data
             sats = fd.scalar_sats
             fp = self._footprint(si, fr)
@@ -549,7 +549,7 @@ def make_cloth_class():
             st["fp_probs"] = self._lobe_weights(k, fr["wi"], yarn_mean, fr["t_sheen_i"], scattered, enabled)
             eps_c = self.DEFENSIVE_COSINE if any(enabled[:5]) else 0.0
             st["eps_c"] = eps_c = dr.select(fp["use"], eps_c, 0.0)
-            # Its lower (transmission) half takes the diffuse lobes' split, at least a
+            # Its lower (transmission) share follows the diffuse lobes' split, at least a
             # tenth on either side: at grazing angles a fixed half wasted 5% of samples.
             p_dr, p_dt = st["fp_probs"][DIFFUSE_REFLECTION], st["fp_probs"][DIFFUSE_TRANSMISSION]
             diffuse = p_dr + p_dt
@@ -595,8 +595,7 @@ def make_cloth_class():
                 h_table = mi.Vector3f(h.x, h.y, fr["sign"] * h.z)
                 h_table = dr.select(h_table.z < 0.0, -h_table, h_table)
                 # One of the four bins around h, picked with its bilinear weight: the
-                # expected lookup is the bilinear one, at a quarter of the reads (these
-                # reads dominate the cost of an evaluation).
+                # expected lookup is the bilinear one, at a quarter of the reads.
                 bin_h = pick_bin(*hemisphere_bins(h_table, fd.dr), st["u_bin"])
                 d_yarn = _sum(fd.d_integral(q_, bin_h) for q_ in st["q"]) * st["inv_area"]  # mean over P of D I
                 # f_rs per unit D: G of the footprint's mean SGGX matrix (g_bar), and of each
