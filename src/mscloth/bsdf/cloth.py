@@ -177,14 +177,6 @@ def _pick(values, index):
     return out
 
 
-def _sum(values):
-    """The sum of per-lane values (a generator or list)."""
-    total = None
-    for v in values:
-        total = v if total is None else total + v
-    return total
-
-
 def _max_channel(c):
     return dr.maximum(dr.maximum(c[0], c[1]), c[2])
 
@@ -507,7 +499,7 @@ def make_cloth_class():
             # Every channel at once (gap, albedo, moments, cluster histogram): packets of four
             # neighbouring channels per corner read; channels left unused cost nothing.
             per_box = [sats.integrals(q_, 0, sats.channels) for q_ in q]
-            means = [_sum(values) * inv_area for values in zip(*per_box)]
+            means = [sum(values) * inv_area for values in zip(*per_box)]
 
             def mean(channel):
                 return means[channel]
@@ -597,7 +589,7 @@ def make_cloth_class():
                 # One of the four bins around h, picked with its bilinear weight: the
                 # expected lookup is the bilinear one, at a quarter of the reads.
                 bin_h = pick_bin(*hemisphere_bins(h_table, fd.dr), st["u_bin"])
-                d_yarn = _sum(fd.d_integral(q_, bin_h) for q_ in st["q"]) * st["inv_area"]  # mean over P of D I
+                d_yarn = sum(fd.d_integral(q_, bin_h) for q_ in st["q"]) * st["inv_area"]  # mean over P of D I
                 # f_rs per unit D: G of the footprint's mean SGGX matrix (g_bar), and of each
                 # residual texel's own tangent (g_k). The residual corrects mean(D) g_bar
                 # towards mean(D g), which differ where D and the tangent correlate (grazing
@@ -613,7 +605,7 @@ def make_cloth_class():
                     if fd.per_cluster:
                         base = mi.Float(0.0)
                         for c in range(fd.clusters):
-                            base += st["cvis_i"][c] * cvis_o[c] * _sum(fd.d_integral(q_, bin_h, c) for q_ in st["q"])
+                            base += st["cvis_i"][c] * cvis_o[c] * sum(fd.d_integral(q_, bin_h, c) for q_ in st["q"])
                         base *= st["inv_area"]
                     else:
                         base = d_yarn * 0.25 * (vbar_p[0] + vbar_p[1] + vbar_p[2] + vbar_p[3])
@@ -907,7 +899,7 @@ def make_cloth_class():
             if self.multiscale:
                 fp = self._footprint(si, fr)
                 sats = self.footprint_data.scalar_sats
-                covered = _sum(sats.integral(sats.query(*box), self.footprint_data.GAP) for box in fp["boxes"])
+                covered = sum(sats.integral(sats.query(*box), self.footprint_data.GAP) for box in fp["boxes"])
                 yarn = dr.select(fp["use"], covered / fp["area"], yarn)
             t_sheen = fr["t_sheen_i"]
             return dr.select(active & (dr.abs(si.wi.z) > spongecake.COS_EPSILON),

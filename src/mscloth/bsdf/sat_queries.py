@@ -161,7 +161,7 @@ class ResidualSATs:
             col = gather_block(self.last_col, c.iy * C + first, n, c.use_col)
             row = gather_block(self.last_row, c.ix * C + first, n, c.use_row)
             for j in range(n):
-                out[j] += sign * (c.qx * c.qy * totals[j] + c.qx * col[j] + c.qy * row[j] + inner[j])
+                out[j] += sign * self._periodic(c, totals[j], col[j], row[j], inner[j])
         return [o + m * q.area for o, m in zip(out, means)]
 
     def integral(self, q: RectQuery, channel):
@@ -188,8 +188,15 @@ class ResidualSATs:
                 inner = dr.lerp(dr.lerp(v00, v01, c.fx), dr.lerp(v10, v11, c.fx), c.fy)
                 col = dr.lerp(gather(self.last_col, col, c.use_col), gather(self.last_col, col + C, c.use_col), c.fy)
                 row = dr.lerp(gather(self.last_row, row, c.use_row), gather(self.last_row, row + C, c.use_row), c.fx)
-            residual += sign * (c.qx * c.qy * total + c.qx * col + c.qy * row + inner)
+            residual += sign * self._periodic(c, total, col, row, inner)
         return residual + gather(self.mean, channel) * q.area
+
+    @staticmethod
+    def _periodic(c, total, col, row, inner):
+        """S at corner ``c`` of the repeated tile: its whole tiles (qx qy of the tile's
+        total), whole columns and rows of tiles (the last column / row of S), and the
+        remainder inside the tile."""
+        return c.qx * c.qy * total + c.qx * col + c.qy * row + inner
 
 
 def hemisphere_bins(w, n: int):

@@ -32,7 +32,8 @@ brute-force supersampling, and would keep the texture noise of where the sample 
 the first hit ``clothpath`` therefore hands footprint-aware BSDFs (those with
 ``eval_pdf_sample_n``, i.e. ``cloth``) the uv of the pixel centre: the sample's uv moved by
 ``-(duv_dx * ox + duv_dy * oy)`` with ``(ox, oy)`` its offset from the pixel centre in pixels
-(:func:`pixel_centre_offset`, perspective cameras; other sensors keep the sample's uv).
+(:func:`pixel_centring`: perspective and orthographic cameras; other sensors keep the
+sample's uv).
 
 Later hits: ray cones
 ---------------------
@@ -280,9 +281,9 @@ def pixel_centring(scene, ray):
     (ox, oy, valid) giving each lane's offset from its pixel centre (``p``: the point the ray
     hits), for the scene's perspective or orthographic camera; lanes whose ray does not come
     from that camera are not valid. None when the scene has neither."""
+    d = dr.normalize(ray.d)
     for sensor in scene.sensors():
         name = sensor.class_name()
-        d = dr.normalize(ray.d)
         if name == "PerspectiveCamera":
             # Camera rays' lines pass through the centre of projection.
             origin = mi.Point3f(sensor.world_transform().translation())
