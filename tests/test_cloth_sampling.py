@@ -4,7 +4,7 @@ import mitsuba as mi
 import pytest
 
 import mscloth
-from mscloth.bsdf.cloth import DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, SHEEN, SPECULAR_REFLECTION, SPECULAR_TRANSMISSION
+from mscloth.bsdf.lobes import DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, SHEEN, SPECULAR_REFLECTION, SPECULAR_TRANSMISSION
 
 from cloth_fixtures import cloth_chi2_adapter, direction, non_delta_context, yarn_texels
 

@@ -14,13 +14,11 @@ from ..maps.builtin import resolve_pattern
 from ..scattering import sggx, sheen, spongecake
 from .footprint_data import FootprintData
 from .lobe_calibration import LobeCalibration, measure_ratios
+from .lobes import (DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN,
+                    SPECULAR_REFLECTION, SPECULAR_TRANSMISSION)
 from .sat_queries import hemisphere_bins, pick_bin
 from .parameters import FLOAT_PARAMETERS, SPECTRUM_PARAMETERS, read_parameters
 
-# Component indices, in the order of ``m_components``.
-SHEEN, SPECULAR_REFLECTION, DIFFUSE_REFLECTION, SPECULAR_TRANSMISSION, DIFFUSE_TRANSMISSION, GAP = range(6)
-LOBE_NAMES = ("sheen", "specular_reflection", "diffuse_reflection",
-              "specular_transmission", "diffuse_transmission", "gap")
 
 DOCSTRING = r"""
 Multi-scale surface-based cloth (``cloth``)

@@ -101,9 +101,10 @@ class FootprintData:
         side = dr.select(back, mi.UInt32(self.n_dirs), mi.UInt32(0))
         values = [mi.Float(0.0) for _ in range(self.clusters)]
         for b, wt in zip(bins, weights):
-            base = (side + b) * self.clusters
+            # A bin's clusters are contiguous: packets of four when there are 4k of them.
+            row = gather_block(self.cluster_vis, (side + b) * self.clusters, self.clusters)
             for c in range(self.clusters):
-                values[c] += wt * gather(self.cluster_vis, base + c)
+                values[c] += wt * row[c]
         return values
 
     def parallax_offset(self, ix, iy, w):

@@ -22,11 +22,13 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .lobes import DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, SHEEN, SPECULAR_REFLECTION, SPECULAR_TRANSMISSION
 from .sat_queries import flat_array, gather
 
 #: Lobes with a measured ratio: (proxy slot, components whose albedos it covers). The
 #: specular proxy stands for the flake lobe, which reflects and transmits.
-CALIBRATED = ((0, (0,)), (1, (1, 3)), (2, (2,)), (4, (4,)))
+CALIBRATED = ((SHEEN, (SHEEN,)), (SPECULAR_REFLECTION, (SPECULAR_REFLECTION, SPECULAR_TRANSMISSION)),
+              (DIFFUSE_REFLECTION, (DIFFUSE_REFLECTION,)), (DIFFUSE_TRANSMISSION, (DIFFUSE_TRANSMISSION,)))
 #: No lobe drops below this share of its proxy, so that each stays reachable wherever the
 #: measurement saw (nearly) nothing of it.
 MIN_RATIO = 0.02
