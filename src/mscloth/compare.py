@@ -45,6 +45,7 @@ slope -1 (error ~ 1/time) and flagged ``extrapolated: true``.
 from __future__ import annotations
 
 import gc
+import functools
 import hashlib
 import io
 import json
@@ -282,15 +283,27 @@ def timed_render(scene, spp: int, seed: int) -> Render:
 
 # --------------------------------------------------------------------------- reference
 
+@functools.lru_cache(maxsize=1)
+def code_digest() -> str:
+    """SHA-256 of mscloth's Python sources: a changed renderer (a fixed bias, a better
+    sampler with a lower noise floor) never reuses a reference it did not render."""
+    root = Path(__file__).resolve().parent
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        digest.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()
+
+
 def reference_key(name: str, width: int, height: int, spp: int) -> str:
     """SHA-256 of what determines the reference: the scene (its XML text, so an edited
-    built-in scene never reuses an old reference), resolution, spp, mscloth version."""
+    built-in scene never reuses an old reference), resolution, spp, mscloth version and
+    sources (:func:`code_digest`)."""
     from .scenes.builtin import builtin_scene
     from .scenes.xml_export import scene_to_xml
 
     scene = scene_to_xml(builtin_scene(name, width, height))
     text = (f"mscloth-reference|scene={name}|res={width}x{height}|spp={spp}|version={__version__}"
-            f"|xml={scene}")
+            f"|code={code_digest()}|xml={scene}")
     return hashlib.sha256(text.encode()).hexdigest()
 
 
