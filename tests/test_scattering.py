@@ -641,8 +641,10 @@ def test_tabulated_sheen_pdf_is_zero_below_and_rejects_a_bad_table():
     wi_v = vec(dir_theta(50.0, 0.0))
     assert float(npf(sampler.pdf(wi_v, vec(dir_theta(120.0, 30.0))))[0]) == 0.0
     assert float(npf(sampler.pdf(wi_v, vec(dir_theta(60.0, 30.0))))[0]) > 0.0
-    with pytest.raises(ValueError, match="density of shape"):
+    with pytest.raises(ValueError, match="non-negative values of shape"):
         sheen.TabulatedSheenSampler(np.ones((2, 3, 4)), 2, 3, 5)
+    with pytest.raises(ValueError, match="all zero"):
+        sheen.TabulatedSheenSampler(np.zeros((2, 3, 4)), 2, 3, 4)
 
 
 def test_sheen_transmittance_and_lower_hemisphere():

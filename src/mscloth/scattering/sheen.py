@@ -78,43 +78,53 @@ class TabulatedSheenSampler:
 
     The fuzz is isotropic about the normal, so f_sheen |cos o| depends on cos(theta_i),
     cos(theta_o) and the azimuth between them. The table has one slice per band of
-    incident angles (``n_mu`` bands, uniform in sqrt(cos theta_i): finest at grazing
-    incidence, where the lobe changes fastest and dominates), each a piecewise-constant
-    density on ``n_y`` x ``n_x`` cells of y = cos(theta_o) by x = (phi_o - phi_i) / 2 pi
-    (d omega = 2 pi dx dy), from f at the cell centres for the band's centre. ``sample``
-    inverts the slice's marginal and conditional CDFs (two binary searches); ``pdf`` is
-    one table read. The weight f/pdf then varies only within a cell and across a band:
-    relative variance < 0.005 from 20 to 88 degrees, against 0.05-0.19 for
-    :class:`FoldedSheenSampler`.
+    incident angles (``n_mu`` bands, uniform in sqrt(cos theta_i)), each a
+    piecewise-constant density on ``n_y`` x ``n_x`` cells of y = cos(theta_o) by
+    x = (phi_o - phi_i) / 2 pi (d omega = 2 pi dx dy), from the lobe at the cell centres for
+    the band's centre. Rows are uniform in sqrt(y) and bands in sqrt(cos theta_i): finest
+    at grazing angles, where the lobe changes fastest and the sheen dominates. ``sample``
+    inverts the band's marginal and conditional CDFs (two binary searches), ``pdf`` is one
+    table read. The weight f/pdf varies only inside a cell and across a band: relative
+    variance 0.0001-0.0011 from 20 to 89.5 degrees (alpha_s 0.5, T_s 0.3), against
+    0.014-0.19 for :class:`FoldedSheenSampler` (up to 34 at alpha_s 0.1, where the table
+    gives 0.0002-0.007). 1.5 MiB and ~0.03 s to build at the default sizes.
 
-    A cosine floor (``FLOOR`` of the slice's mean) keeps every upper direction reachable
+    A cosine floor (``FLOOR`` of the band's mean) keeps every upper direction reachable
     for a very peaked lobe (small alpha_s). Sampling stays exact whatever the table holds
     (``pdf`` is the density of ``sample``), so a table left behind by changed sheen
     parameters only costs variance."""
 
     FLOOR = 0.01
 
-    def __init__(self, density, n_mu: int, n_y: int, n_x: int):
-        """``density``: (n_mu, n_y, n_x) solid-angle densities, each slice integrating to 1."""
-        density = np.asarray(density, dtype=np.float64)
-        if density.shape != (n_mu, n_y, n_x):
-            raise ValueError(f"TabulatedSheenSampler: density of shape {density.shape}, expected {(n_mu, n_y, n_x)}")
+    def __init__(self, values, n_mu: int, n_y: int, n_x: int):
+        """``values``: (n_mu, n_y, n_x) non-negative cell values of f |cos o| (any scale per
+        band); row j spans y in [(j / n_y)^2, ((j + 1) / n_y)^2]."""
+        values = np.asarray(values, dtype=np.float64)
+        if values.shape != (n_mu, n_y, n_x) or not np.all(np.isfinite(values)) or np.any(values < 0.0):
+            raise ValueError(f"TabulatedSheenSampler: expected finite non-negative values of shape "
+                             f"{(n_mu, n_y, n_x)}, got shape {values.shape}")
         self.n_mu, self.n_y, self.n_x = n_mu, n_y, n_x
-        self.density = density
-        cell = density * (2.0 * np.pi / (n_x * n_y))  # probability of each cell
+        edges = (np.arange(n_y + 1) / n_y) ** 2
+        # Mass of a cell: value * its height in y * its azimuth width.
+        cell = values * (edges[1:] - edges[:-1])[None, :, None] * (2.0 * np.pi / n_x)
+        total = cell.sum(axis=(1, 2), keepdims=True)
+        if np.any(total <= 0.0):
+            raise ValueError("TabulatedSheenSampler: a band of the table is all zero")
+        cell /= total
+        self.density = values / total  # the solid-angle pdf inside each cell
         rows = cell.sum(axis=2)
         cdf_y = np.concatenate([np.zeros((n_mu, 1)), np.cumsum(rows, axis=1)], axis=1)
         cdf_y /= cdf_y[:, -1:]
         cdf_x = np.concatenate([np.zeros((n_mu, n_y, 1)), np.cumsum(cell, axis=2)], axis=2)
         cdf_x /= np.where(cdf_x[..., -1:] > 0.0, cdf_x[..., -1:], 1.0)
-        self._density = mi.Float(density.astype(np.float32).ravel())
+        self._density = mi.Float(self.density.astype(np.float32).ravel())
         self._cdf_y = mi.Float(cdf_y.astype(np.float32).ravel())
         self._cdf_x = mi.Float(cdf_x.astype(np.float32).ravel())
 
     @classmethod
-    def build(cls, alpha_s, thickness_s, n_mu: int = 48, n_y: int = 32, n_x: int = 32):
+    def build(cls, alpha_s, thickness_s, n_mu: int = 48, n_y: int = 64, n_x: int = 64):
         mu = ((np.arange(n_mu) + 0.5) / n_mu) ** 2
-        y = (np.arange(n_y) + 0.5) / n_y
+        y = ((np.arange(n_y) + 0.5) / n_y) ** 2
         x = (np.arange(n_x) + 0.5) / n_x
         M, Y, X = np.meshgrid(mu, y, x, indexing="ij")
         sin_i = np.sqrt(1.0 - M * M).ravel()
@@ -122,13 +132,12 @@ class TabulatedSheenSampler:
         phi = 2.0 * np.pi * X
         wi = mi.Vector3f(sin_i, np.zeros_like(sin_i), M.ravel())
         wo = mi.Vector3f((sin_o * np.cos(phi)).ravel(), (sin_o * np.sin(phi)).ravel(), Y.ravel())
-        f = np.asarray(eval_sheen(wi, wo, alpha_s, thickness_s), dtype=np.float64).reshape(M.shape)
-        f = np.where(np.isfinite(f), np.maximum(f, 0.0), 0.0)
-        f += cls.FLOOR * np.maximum(f.mean(axis=(1, 2), keepdims=True), 1e-30) * Y
-        density = f / (f.mean(axis=(1, 2), keepdims=True) * 2.0 * np.pi)
-        return cls(density, n_mu, n_y, n_x)
+        f_cos = np.asarray(eval_sheen(wi, wo, alpha_s, thickness_s), dtype=np.float64).reshape(M.shape)
+        f_cos = np.where(np.isfinite(f_cos), np.maximum(f_cos, 0.0), 0.0)
+        f_cos += cls.FLOOR * np.maximum(f_cos.mean(axis=(1, 2), keepdims=True), 1e-30) * Y
+        return cls(f_cos, n_mu, n_y, n_x)
 
-    def _slice(self, wi):
+    def _band(self, wi):
         band = dr.floor(dr.sqrt(dr.maximum(wi.z, 0.0)) * self.n_mu)
         return mi.UInt32(dr.clip(band, 0, self.n_mu - 1))
 
@@ -143,13 +152,16 @@ class TabulatedSheenSampler:
 
     def sample(self, wi, u):
         """(wo, pdf) for wi above the surface; wo is above too."""
-        k = self._slice(wi)
+        k = self._band(wi)
         n_y, n_x = self.n_y, self.n_x
         row0 = k * (n_y + 1)
         iy = dr.binary_search(0, n_y - 1, lambda j: dr.gather(mi.Float, self._cdf_y, row0 + j + 1) <= u.y)
         c0 = dr.gather(mi.Float, self._cdf_y, row0 + iy)
         c1 = dr.gather(mi.Float, self._cdf_y, row0 + iy + 1)
-        y = (mi.Float(iy) + dr.clip((u.y - c0) / dr.maximum(c1 - c0, 1e-12), 0.0, 1.0)) / n_y
+        t = dr.clip((u.y - c0) / dr.maximum(c1 - c0, 1e-12), 0.0, 1.0)
+        v0 = mi.Float(iy) / n_y
+        v1 = v0 + 1.0 / n_y
+        y = dr.lerp(v0 * v0, v1 * v1, t)  # uniform inside the cell
         col0 = (k * n_y + iy) * (n_x + 1)
         ix = dr.binary_search(0, n_x - 1, lambda j: dr.gather(mi.Float, self._cdf_x, col0 + j + 1) <= u.x)
         d0 = dr.gather(mi.Float, self._cdf_x, col0 + ix)
@@ -159,7 +171,7 @@ class TabulatedSheenSampler:
         sin_phi, cos_phi = dr.sincos(2.0 * dr.pi * x)
         sin_o = dr.safe_sqrt(1.0 - y * y)
         wo = mi.Vector3f(sin_o * (c * cos_phi - s * sin_phi), sin_o * (s * cos_phi + c * sin_phi), y)
-        pdf = dr.gather(mi.Float, self._density, (k * n_y + iy) * n_x + mi.UInt32(dr.minimum(ix, n_x - 1)))
+        pdf = dr.gather(mi.Float, self._density, (k * n_y + iy) * n_x + ix)
         return wo, pdf
 
     def pdf(self, wi, wo):
@@ -168,7 +180,7 @@ class TabulatedSheenSampler:
         x = dr.atan2(c * wo.y - s * wo.x, c * wo.x + s * wo.y) * (0.5 * dr.inv_pi)
         x = x - dr.floor(x)
         ix = mi.UInt32(dr.clip(dr.floor(x * self.n_x), 0, self.n_x - 1))
-        iy = mi.UInt32(dr.clip(dr.floor(wo.z * self.n_y), 0, self.n_y - 1))
+        iy = mi.UInt32(dr.clip(dr.floor(dr.safe_sqrt(wo.z) * self.n_y), 0, self.n_y - 1))
         above = wo.z > 0.0
-        pdf = dr.gather(mi.Float, self._density, (self._slice(wi) * self.n_y + iy) * self.n_x + ix, above)
-        return dr.select(above, pdf, 0.0)
+        density = dr.gather(mi.Float, self._density, (self._band(wi) * self.n_y + iy) * self.n_x + ix, above)
+        return dr.select(above, density, 0.0)
