@@ -219,8 +219,25 @@ def _cloth_shape_keys(scene: dict) -> set[str]:
             if isinstance(node, dict) and isinstance(node.get("bsdf"), dict) and node["bsdf"].get("type") == "cloth"}
 
 
+def away_from_edges(ids: np.ndarray) -> np.ndarray:
+    """Pixels whose 8 neighbours show the same shape as they do (at the pixel centres).
+
+    A pixel on a silhouette or on the border between two shapes mixes both in its box
+    filter: its samples' spread is that edge's anti-aliasing noise, the same whichever BSDF
+    shades the cloth. Regions leave such pixels out, so that they measure the shading."""
+    ids = np.asarray(ids)
+    h, w = ids.shape
+    pad = np.pad(ids, 1, mode="edge")
+    same = np.ones((h, w), dtype=bool)
+    for dy in range(3):
+        for dx in range(3):
+            same &= pad[dy:dy + h, dx:dx + w] == ids
+    return same
+
+
 def depth_and_cloth(name: str, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
-    """Camera distance (H, W) and a cloth mask (H, W) at the pixel centres."""
+    """Camera distance (H, W) and a mask (H, W) of the cloth pixels away from edges
+    (:func:`away_from_edges`), from the pixel centres."""
     import drjit as dr
     import mitsuba as mi
 
@@ -244,7 +261,8 @@ def depth_and_cloth(name: str, width: int, height: int) -> tuple[np.ndarray, np.
     # shape_index holds the shape's registry id, which a ShapePtr reinterpreted as UInt32 gives
     cloth_ids = [int(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(shapes[key]))[0]) for key in cloth_keys]
     depth = aov[..., 0].astype(np.float64)
-    cloth = np.isin(np.rint(aov[..., 1]).astype(np.int64), cloth_ids) & (depth > 0)
+    ids = np.rint(aov[..., 1]).astype(np.int64)
+    cloth = np.isin(ids, cloth_ids) & (depth > 0) & away_from_edges(ids)
     del loaded
     gc.collect()
     return depth, cloth

@@ -242,6 +242,9 @@ def make_cloth_class():
             # The sheen lobe sampled from a table of itself (JIT variants; scalar variants,
             # for unit tests, reflect on the fuzz's visible normals).
             self.sheen_sampler = sheen.FoldedSheenSampler(self.sheen_roughness)
+            # Diffuse lobes leave through the fuzz: sampled with its transmittance.
+            with dr.suspend_grad():
+                self.diffuse_sampler = sheen.FuzzCosineSampler(p.sheen_roughness, p.sheen_thickness)
             if dr.is_jit_v(mi.Float) and p.sheen_thickness > 0.0:
                 with dr.suspend_grad():
                     self.sheen_sampler = sheen.TabulatedSheenSampler.build(p.sheen_roughness, p.sheen_thickness)
@@ -471,11 +474,12 @@ def make_cloth_class():
                 for t in tangents:
                     spec += spongecake.pdf_specular(wi, wo, t, self.roughness)
                 pdf += probs[SPECULAR_REFLECTION] * dr.select(side_ok, spec * (1.0 / len(tangents)), 0.0)
-            cosine = dr.abs(wo.z) * dr.inv_pi
-            if enabled[DIFFUSE_REFLECTION]:
-                pdf += probs[DIFFUSE_REFLECTION] * dr.select(up, cosine, 0.0)
-            if enabled[DIFFUSE_TRANSMISSION]:
-                pdf += probs[DIFFUSE_TRANSMISSION] * dr.select(up, 0.0, cosine)
+            if enabled[DIFFUSE_REFLECTION] or enabled[DIFFUSE_TRANSMISSION]:
+                diffuse = self.diffuse_sampler.pdf(wo)
+                if enabled[DIFFUSE_REFLECTION]:
+                    pdf += probs[DIFFUSE_REFLECTION] * dr.select(up, diffuse, 0.0)
+                if enabled[DIFFUSE_TRANSMISSION]:
+                    pdf += probs[DIFFUSE_TRANSMISSION] * dr.select(up, 0.0, diffuse)
             return pdf
 
         def _footprint_state(self, si, fr, enabled, xi=None, xi_round=None, u_bin=None):
@@ -740,7 +744,7 @@ def make_cloth_class():
             wo_sheen = wo_spec
             if enabled[SHEEN]:
                 wo_sheen, _ = self.sheen_sampler.sample(wi, sample2)
-            wo_diffuse = mi.warp.square_to_cosine_hemisphere(sample2)
+            wo_diffuse = self.diffuse_sampler.sample(sample2)
             wo_diffuse.z = dr.select(pick_dt, -wo_diffuse.z, wo_diffuse.z)
             wo = dr.select(pick_sheen, wo_sheen, dr.select(pick_spec, wo_spec, wo_diffuse))
 

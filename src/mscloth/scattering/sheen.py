@@ -12,7 +12,8 @@ reaches the cloth below (Eq. 1).
 Sampling: :class:`TabulatedSheenSampler` draws wo in proportion to a table of
 f_sheen |cos o| (JIT variants); :class:`FoldedSheenSampler` reflects on the fuzz's
 visible normals (:func:`sample_sheen`). Both share one interface: ``sample(wi, u)`` and
-``pdf(wi, wo)``.
+``pdf(wi, wo)``. :class:`FuzzCosineSampler` draws the directions of diffuse light leaving
+through the fuzz, |cos o| T_sheen(o).
 """
 from __future__ import annotations
 
@@ -184,3 +185,38 @@ class TabulatedSheenSampler:
         above = wo.z > 0.0
         density = dr.gather(mi.Float, self._density, (self._band(wi) * self.n_y + iy) * self.n_x + ix, above)
         return dr.select(above, density, 0.0)
+
+
+class FuzzCosineSampler:
+    """Directions in proportion to |cos o| e^{-T_s |Lambda_s(o)|}: a diffuse lobe seen
+    through the fuzz, which dims grazing directions (T_sheen(o) falls from 0.86 at the
+    normal to 0.2 at 80 degrees for alpha_s 0.5, T_s 0.3).
+
+    Cosine sampling leaves that factor in the weight (relative variance 0.075 for those
+    parameters, 0.19 for T_s 0.6); here it is a 1D density of cos(theta_o) (Mitsuba's
+    ``ContinuousDistribution``: piecewise linear on ``nodes`` regular nodes, any variant)
+    and a uniform azimuth. ``sample(u)`` returns upper-hemisphere directions; ``pdf(w)``
+    is the density of w or of its mirror image below (callers pick the side)."""
+
+    def __init__(self, alpha_s, thickness_s, nodes: int = 129):
+        mu = np.linspace(0.0, 1.0, nodes)
+        mu_safe = np.maximum(mu, 1e-6)
+        sin = np.sqrt(1.0 - mu_safe * mu_safe)
+        if dr.is_jit_v(mi.Float):
+            t = np.asarray(sheen_transmittance(mi.Vector3f(sin, np.zeros_like(sin), mu_safe), alpha_s, thickness_s))
+        else:  # scalar variants: one direction at a time (129 of them)
+            t = np.array([float(sheen_transmittance(mi.Vector3f(float(a), 0.0, float(b)), alpha_s, thickness_s))
+                          for a, b in zip(sin, mu_safe)])
+        density = mu * np.where(np.isfinite(t), t, 0.0)
+        if not np.any(density > 0.0):
+            density = mu  # a fuzz too thick to cross: any direction is as good
+        self.distribution = mi.ContinuousDistribution(mi.ScalarVector2f(0.0, 1.0), density.tolist())
+
+    def sample(self, u):
+        cos_o = self.distribution.sample(u.x)
+        sin_phi, cos_phi = dr.sincos(2.0 * dr.pi * u.y)
+        sin_o = dr.safe_sqrt(1.0 - cos_o * cos_o)
+        return mi.Vector3f(sin_o * cos_phi, sin_o * sin_phi, cos_o)
+
+    def pdf(self, w):
+        return self.distribution.eval_pdf_normalized(dr.abs(w.z)) * (0.5 * dr.inv_pi)
