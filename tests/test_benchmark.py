@@ -23,5 +23,5 @@ def test_results_page_has_every_table_and_the_split_of_the_speed_up(tmp_path):
     assert "| cloth (mscloth, multi-scale) | 2.400 | 1.70 | 10.00x |" in text
     assert "| 512x512 | 32 | rank 64 (`direction_rank`) | 17.0 | 115 | 65 |" in text
     # Brute force at multi-scale's spp and at 256 spp (or a note that the curve stopped short).
-    assert "| plane | near | 0.40x | 16 / 0.0040 / 0.12 | 64 / 0.0020 / 0.14 | 0.0060 / 0.04 | 0.00039 |" in text
+    assert "| plane | near | 0.40x | 16 / 0.004 / 0.12 | 64 / 0.002 / 0.14 | 0.006 / 0.04 | 0.000391 |" in text
     assert "| sphere | far | 0.30x |" in text and "not reached |" in text

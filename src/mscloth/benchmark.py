@@ -222,11 +222,12 @@ def write_results(path: Path, command: str, variant: str, cost_rows, cost_setup,
         for g in ("near", "middle", "far"):
             r = result[g]
             at_256 = [p for p in r["curve_bruteforce"] if p["spp"] == 256]
-            lines.append(f"| {name} | {g} | {r['speedup']:.2f}x | {r['spp_multiscale']} / {r['relmse_multiscale']:.4f} / "
-                         f"{r['seconds_multiscale']:.2f} | {r['spp_bruteforce']} / {r['relmse_bruteforce']:.4f} / "
-                         f"{r['seconds_bruteforce']:.2f} | {r['relmse_bruteforce_equal_spp']:.4f} / "
+            # Three significant digits: converged regions reach 1e-5 and below.
+            lines.append(f"| {name} | {g} | {r['speedup']:.2f}x | {r['spp_multiscale']} / {r['relmse_multiscale']:.3g} / "
+                         f"{r['seconds_multiscale']:.2f} | {r['spp_bruteforce']} / {r['relmse_bruteforce']:.3g} / "
+                         f"{r['seconds_bruteforce']:.2f} | {r['relmse_bruteforce_equal_spp']:.3g} / "
                          f"{r['seconds_bruteforce_equal_spp']:.2f} | "
-                         + (f"{at_256[0]['relmse']:.5f}" if at_256 else "not reached") + " |")
+                         + (f"{at_256[0]['relmse']:.3g}" if at_256 else "not reached") + " |")
     lines += [
         "",
         "Targets (issue 5): speed-up >= 30x in the middle and far regions of plane and sphere;",
