@@ -16,12 +16,16 @@ def test_results_page_has_every_table_and_the_split_of_the_speed_up(tmp_path):
     compare = [("plane", {g: region(0.4, (1, 16, 256)) for g in ("near", "middle", "far")}),
                ("sphere", {g: region(0.3, (1, 16, 64)) for g in ("near", "middle", "far")})]
     write_results(out, "make bench", "llvm_ad_rgb", cost, "256x256, 64 spp", [("plain", 0.4, (1024, 1024))],
-                  1024, table_rows=[(512, 32, 64, 17.0, 115.0, 65.0)],
+                  1024, table_rows=[(512, 32, 0, 10.0, 1078.0, 1028.0), (512, 32, 64, 17.0, 115.0, 65.0),
+                                    (256, 16, 0, 1.4, 77.0, 65.0)],
                   ccv_rows=[(2.0, [0.6, -0.2, 0.77], [-0.1, 0.7, 0.7], 0.05, -0.01, 0.009, 0.008)],
                   compare_rows=compare)
     text = out.read_text()
     assert "| cloth (mscloth, multi-scale) | 2.400 | 1.70 | 10.00x |" in text
-    assert "| 512x512 | 32 | rank 64 (`direction_rank`) | 17.0 | 115 | 65 |" in text
+    # The default under max_table_mib: rank 64 for 512^2 at 32^2 bins, the full table at 256^2, 16^2.
+    assert "| 512x512 | 32 | rank 64 (`direction_rank`) = default | 17.0 | 115 | 65 |" in text
+    assert "| 512x512 | 32 | full | 10.0 | 1078 | 1028 |" in text
+    assert "| 256x256 | 16 | full = default | 1.4 | 77 | 65 |" in text
     # Brute force at multi-scale's spp and at 256 spp (or a note that the curve stopped short).
     assert "| plane | near | 0.40x | 16 / 0.004 / 0.12 | 64 / 0.002 / 0.14 | 0.006 / 0.04 | 0.000391 |" in text
     assert "| sphere | far | 0.30x |" in text and "not reached |" in text

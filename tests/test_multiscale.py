@@ -194,6 +194,29 @@ def test_rank_compressed_directional_sat_matches_brute_force(half):
     assert abs(ms - bf) <= 5.0 * np.hypot(ms_err, bf_err) + APPROXIMATION * abs(bf), (ms, bf)
 
 
+def test_choose_direction_rank_keeps_tables_within_the_budget():
+    from mscloth.precompute.tables import AUTO_RANK, choose_direction_rank
+
+    # 512^2 at 32^2 bins: 1028 MiB full -> rank 64 (64 MiB); 256^2 at 16^2: 64 MiB, full.
+    rank, why = choose_direction_rank(512, 512, 32, 0, 256)
+    assert rank == AUTO_RANK and "1028 MiB" in why and "rank 64" in why
+    assert choose_direction_rank(256, 256, 16, 0, 256) == (0, "")
+    # An explicit rank is kept; a budget below rank 64 gets the largest multiple of 4 that fits.
+    assert choose_direction_rank(512, 512, 32, 24, 16) == (24, "")
+    assert choose_direction_rank(512, 512, 32, 0, 16)[0] == 12
+    # The per-cluster tables count (clusters + 1) copies.
+    assert choose_direction_rank(256, 256, 16, 0, 256, per_cluster=True, clusters=8)[0] == AUTO_RANK
+
+
+def test_a_full_table_over_max_table_mib_is_compressed():
+    """A 64^2 tile at 32^2 bins (16.5 MiB full) with a 16 MiB budget is built at rank 64."""
+    bsdf = mi.load_dict(dict(BASE, resolution=64, direction_bins=32, max_table_mib=16))
+    assert bsdf.maps.resolution == (64, 64)
+    assert bsdf.direction_rank == 64 and bsdf.footprint_data.d_rank == 64
+    roomy = mi.load_dict(dict(BASE, resolution=64, direction_bins=32, max_table_mib=17))
+    assert roomy.direction_rank == 0 and roomy.footprint_data.d_rank == 0
+
+
 def test_direction_rank_must_fit_the_bins():
     with pytest.raises(Exception, match="direction_rank"):
         mi.load_dict(dict(BASE, direction_bins=4, direction_rank=17))

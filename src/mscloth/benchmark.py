@@ -196,12 +196,20 @@ def write_results(path: Path, command: str, variant: str, cost_rows, cost_setup,
         "| tile | dr | directional SAT | build seconds | memory MiB | of which directional SAT |",
         "|---|---|---|---|---|---|",
     ]
+    from .bsdf.parameters import INT_PARAMETERS
+    from .precompute.tables import choose_direction_rank
+
+    budget = INT_PARAMETERS["max_table_mib"][0]
     for res, dr_bins, rank, seconds, mib, d_mib in table_rows:
         kind = f"rank {rank} (`direction_rank`)" if rank else "full"
+        if choose_direction_rank(res, res, dr_bins, 0, budget)[0] == rank:
+            kind += " = default"
         lines.append(f"| {res}x{res} | {dr_bins} | {kind} | {seconds:.1f} | {mib:.0f} | {d_mib:.0f} |")
     lines += [
         "",
         "Target (issue 4): 512x512 at dr = 32 in under 30 s and under 256 MiB per pattern.",
+        f"\"default\": what `cloth` builds unless told otherwise: the full table up to `max_table_mib`"
+        f" ({budget} MiB), rank {BENCH_RANK} above it.",
         f"Rank {BENCH_RANK} keeps footprint means within 0.1-1% of the full table (tests/test_precompute.py,",
         "tests/test_multiscale.py); its per-sample cost is in the first table.",
         "",

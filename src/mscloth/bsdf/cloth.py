@@ -124,10 +124,17 @@ back side sees the same maps mirrored through the surface.
    * - direction_rank
      - integer
      - 0
-     - Rank K of the compressed directional SAT (0: full, direction_bins^2 channels):
-       K channels and a bins x K basis (PCA of D over the tile); 64 keeps footprint means
-       within ~0.5% at roughness 0.3 and cuts a 512^2, dr = 32 table from 1 GiB to 64 MiB,
-       at more reads per lookup.
+     - Rank K of the compressed directional SAT (0: full, direction_bins^2 channels, unless
+       that exceeds ``max_table_mib``): K channels and a bins x K basis (PCA of D over the
+       tile); 64 keeps footprint means within ~0.5% at roughness 0.3 and cuts a 512^2,
+       dr = 32 table from 1 GiB to 64 MiB, at about twice the time per sample.
+   * - max_table_mib
+     - integer
+     - 256
+     - Memory budget in MiB of the full directional SAT (``direction_rank`` 0). A tile whose
+       full table would be larger gets rank 64 instead (or the largest rank that fits),
+       with a warning: e.g. 512^2 texels at 32^2 bins (1 GiB). Raise it to keep the full
+       table, which is faster per sample.
    * - footprint_slices
      - integer
      - 1
@@ -227,11 +234,16 @@ def make_cloth_class():
             self.footprint_slices = p.footprint_slices
             self.footprint_data = None
             if p.multiscale or p.visibility or p.parallax:
-                from ..precompute.tables import load_or_build
+                from ..precompute.tables import choose_direction_rank, load_or_build
 
+                rank, why = choose_direction_rank(*self.maps.resolution, p.direction_bins, p.direction_rank,
+                                                  p.max_table_mib, p.unbiased_ccv, p.clusters)
+                if why and p.multiscale:
+                    mi.Log(mi.LogLevel.Warn, f"cloth ({p.pattern}): {why}")
+                self.direction_rank = rank
                 tables = load_or_build(self.maps, p.roughness, dr=p.direction_bins, dv=p.visibility_bins,
                                        clusters=p.clusters, per_cluster_sat=p.unbiased_ccv,
-                                       d_rank=p.direction_rank, parallax=p.parallax)
+                                       d_rank=rank, parallax=p.parallax)
                 self.footprint_data = FootprintData(tables, with_sats=p.multiscale, with_parallax=p.parallax)
 
             flags = 0

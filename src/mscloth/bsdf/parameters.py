@@ -40,7 +40,10 @@ INT_PARAMETERS = {
     "direction_bins": (16, 4, 64, "half-vector bins per side of the directional SAT (dr)"),
     "visibility_bins": (8, 2, 32, "direction bins per side of the visibility tables"),
     "clusters": (8, 1, 32, "visibility clusters for the control variates"),
-    "direction_rank": (0, 0, 4096, "rank of the compressed directional SAT (0: full, dr^2 channels)"),
+    "direction_rank": (0, 0, 4096, "rank of the compressed directional SAT (0: full, dr^2 channels, "
+                                   "or rank 64 over max_table_mib)"),
+    "max_table_mib": (256, 16, 1 << 20, "memory budget (MiB) of a full directional SAT; larger ones "
+                                        "are compressed to rank 64"),
     "footprint_slices": (1, 1, 4, "boxes that cover a sheared pixel footprint (1: its bounding box)"),
 }
 BOOL_PARAMETERS = {
@@ -70,6 +73,7 @@ class ClothParameters:
     visibility_bins: int = 8
     clusters: int = 8
     direction_rank: int = 0
+    max_table_mib: int = 256
     footprint_slices: int = 1
 
 

@@ -186,6 +186,33 @@ def _int_param(name, value, lo, hi):
     return int(value)
 
 
+#: Rank of the compressed directional SAT when the full one is over its memory budget:
+#: footprint means within ~0.5% of the full table at roughness 0.3 (tests/test_precompute.py).
+AUTO_RANK = 64
+
+
+def choose_direction_rank(height: int, width: int, dr: int, requested: int, max_mib: float,
+                          per_cluster: bool = False, clusters: int = 8) -> tuple[int, str]:
+    """The directional SAT's rank for a (height, width) tile: ``requested`` if set (> 0),
+    else 0 (the full dr^2 channels) when that fits in ``max_mib`` MiB, else
+    :data:`AUTO_RANK`, or the largest multiple of 4 that fits (at least 4).
+
+    Returns (rank, why): ``why`` is empty unless the budget chose the rank. The per-cluster
+    tables of ``per_cluster`` multiply the channels by ``clusters`` + 1."""
+    if requested:
+        return requested, ""
+    copies = clusters + 1 if per_cluster else 1
+    per_channel = (height + 1) * (width + 1) * 4 * copies / 2**20
+    full = dr * dr * per_channel
+    if full <= max_mib:
+        return 0, ""
+    fits = int(max_mib // per_channel) // 4 * 4
+    rank = max(4, min(AUTO_RANK, fits, dr * dr))
+    return rank, (f"the full directional SAT of a {width}x{height} tile at {dr}x{dr} bins would take "
+                  f"{full:.0f} MiB > max_table_mib {max_mib:g}: using rank {rank} "
+                  f"({rank * per_channel:.0f} MiB; set direction_rank or max_table_mib to choose)")
+
+
 def _params(roughness, dr=16, dv=8, clusters=8, per_cluster_sat=False, seed=0, iters=30,
             max_step=0.5, vis_eps=1e-4, fast_visibility=False, d_rank=0, parallax=False) -> dict:
     try:
