@@ -18,7 +18,7 @@ def test_results_page_has_every_table_and_the_split_of_the_speed_up(tmp_path):
     write_results(out, "make bench", "llvm_ad_rgb", cost, "256x256, 64 spp", [("plain", 0.4, (1024, 1024))],
                   1024, table_rows=[(512, 32, 0, 10.0, 1078.0, 1028.0), (512, 32, 64, 17.0, 115.0, 65.0),
                                     (256, 16, 0, 1.4, 77.0, 65.0)],
-                  ccv_rows=[(2.0, [0.6, -0.2, 0.77], [-0.1, 0.7, 0.7], 0.05, -0.01, 0.009, 0.008)],
+                  ccv_rows=[(2.0, [0.6, -0.2, 0.77], [-0.1, 0.7, 0.7], [(0.02, 0.009), (0.05, 0.009), (-0.01, 0.008)])],
                   compare_rows=compare)
     text = out.read_text()
     assert "| cloth (mscloth, multi-scale) | 2.400 | 1.70 | 10.00x |" in text
@@ -29,3 +29,4 @@ def test_results_page_has_every_table_and_the_split_of_the_speed_up(tmp_path):
     # Brute force at multi-scale's spp and at 256 spp (or a note that the curve stopped short).
     assert "| plane | near | 0.40x | 16 / 0.004 / 0.12 | 64 / 0.002 / 0.14 | 0.006 / 0.04 | 0.000391 |" in text
     assert "| sphere | far | 0.30x |" in text and "not reached |" in text
+    assert "| 16 | [0.6, -0.2, 0.77] | [-0.1, 0.7, 0.7] | +0.020 +- 0.009 | +0.050 +- 0.009 | -0.010 +- 0.008 |" in text

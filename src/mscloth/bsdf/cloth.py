@@ -111,7 +111,10 @@ back side sees the same maps mirrored through the surface.
    * - unbiased_ccv
      - boolean
      - false
-     - Per-cluster control-variate base (unbiased, 8x the directional SAT memory).
+     - Per-cluster control-variate base: unbiased at every footprint size, for 8x the
+       directional SAT memory. The default base weighs each visibility cluster by its share
+       of the footprint's D: exact over whole tiles, less biased than the paper's Alg. 4
+       below that (``bench/RESULTS.md``).
    * - parallax
      - boolean
      - false
@@ -237,7 +240,7 @@ def make_cloth_class():
                 from ..precompute.tables import choose_direction_rank, load_or_build
 
                 rank, why = choose_direction_rank(*self.maps.resolution, p.direction_bins, p.direction_rank,
-                                                  p.max_table_mib, p.unbiased_ccv, p.clusters)
+                                                  p.max_table_mib)
                 if why and p.multiscale:
                     mi.Log(mi.LogLevel.Warn, f"cloth ({p.pattern}): {why}")
                 self.direction_rank = rank
@@ -547,8 +550,8 @@ def make_cloth_class():
                     t_["cluster"] = fd.cluster_of(t_["ix"], t_["iy"])
                     t_["v_i"] = fd.visibility_at(t_["ix"], t_["iy"], fr["wi"], fr["flip"])
                     t_["cvis_i"] = _pick(cvis_i, t_["cluster"])
-                if enabled[DIFFUSE_REFLECTION] or enabled[DIFFUSE_TRANSMISSION]:
-                    st["fractions"] = [mean(fd.CLUSTERS + c) for c in range(fd.clusters)]
+                # The footprint's share of each cluster's yarn (diffuse lobes, specular base).
+                st["fractions"] = [mean(fd.CLUSTERS + c) for c in range(fd.clusters)]
 
             # The sampling mixture: lobes chosen by the footprint's own averages (yarn
             # coverage, yarn colour, mean SGGX matrix), the specular lobe from the tangent
@@ -634,6 +637,20 @@ def make_cloth_class():
                         for c in range(fd.clusters):
                             base += st["cvis_i"][c] * cvis_o[c] * sum(fd.d_integral(q_, bin_h, c) for q_ in st["q"])
                         base *= st["inv_area"]
+                    elif fd.d_cluster_tile is not None:
+                        # Each cluster's visibility weighted by its share of the footprint's D:
+                        # its share of the footprint times its mean D over the tile. Exact for
+                        # footprints of whole tiles; Alg. 4's mean over the residual texels
+                        # (below) is off by -Cov(D, v) at every size (docs/decisions.md).
+                        m_c = fd.cluster_d_means(bin_h)
+                        num = mi.Float(0.0)
+                        den = mi.Float(0.0)
+                        for c in range(fd.clusters):
+                            w_c = st["fractions"][c] * m_c[c]
+                            num += w_c * st["cvis_i"][c] * cvis_o[c]
+                            den += w_c
+                        texel_mean = 0.25 * (vbar_p[0] + vbar_p[1] + vbar_p[2] + vbar_p[3])
+                        base = d_yarn * dr.select(den > 0.0, num / dr.select(den > 0.0, den, 1.0), texel_mean)
                     else:
                         base = d_yarn * 0.25 * (vbar_p[0] + vbar_p[1] + vbar_p[2] + vbar_p[3])
                     residual = mi.Float(0.0)

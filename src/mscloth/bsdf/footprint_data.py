@@ -41,6 +41,9 @@ class FootprintData:
         if with_parallax:  # (H, W, dv*dv, 2) texel offsets; 18 MiB for a 192^2 tile
             self.parallax = flat_array(tables.parallax)
         self.per_cluster = with_sats and getattr(tables, "d_sat_cluster", None) is not None
+        # (bin, cluster): each cluster's mean D * gap over the tile, a bin's clusters contiguous.
+        tile = getattr(tables, "d_cluster_tile", None)
+        self.d_cluster_tile = flat_array(tile) if with_sats and tile is not None else None
         if with_sats:
             self.d_sat = ResidualSATs(tables.d_sat, tables.d_mean)
             # gap, albedo (3), moments (6), cluster histogram (k): one buffer, channel offsets.
@@ -77,6 +80,10 @@ class FootprintData:
         for c, v in zip(coef, sats.integrals(q, offset, K)):
             total += c * v
         return total
+
+    def cluster_d_means(self, bin_h):
+        """Each visibility cluster's mean of D(h_b, t) I over the tile for bin ``bin_h``."""
+        return gather_block(self.d_cluster_tile, bin_h * self.clusters, self.clusters)
 
     # Channel offsets inside scalar_sats.
     GAP, ALBEDO, MOMENTS = 0, 1, 4

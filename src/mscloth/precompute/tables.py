@@ -21,6 +21,8 @@ moment_sat / _mean     (6) t t^T * gap as [xx, xy, xz, yy, yz, zz]
 cluster_sat / _mean    (clusters) one-hot(cluster_id(p)) * gap(p): cluster histogram
 d_sat_cluster          optional (clusters, dr*dr or K, H+1, W+1) D * gap * [cluster_id == c]
  / d_cluster_mean      (clusters, dr*dr): the unbiased CCV base sum_c vbar_c int_{P∩c} D
+d_cluster_tile         float32 (dr*dr, clusters): mean of D * gap over each cluster's yarn in the
+                       tile, per bin: weights of the clusters' visibilities in the default base
 visibility             uint8 (H, W, dv*dv): 255 = the ray from the texel along bin b escapes
 visibility_back        the same for the mirrored field (bin b = direction (wx, wy, -wz))
 cluster_id             int8 (H, W), -1 in gaps: k-means of the front visibility vectors
@@ -57,7 +59,7 @@ from .visibility import cluster_visibility, visibility_table
 __all__ = ["FORMAT_VERSION", "MultiscaleTables", "build_tables", "load_or_build", "table_key",
            "default_cache_dir", "sggx_fibre_ndf"]
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 _MAPS_FIELDS = ("tangent", "normal", "height", "gap", "yarn_id", "albedo")
 # Channels of D computed per chunk (float64 temporaries: chunk * H * W * 8 bytes).
 _D_CHUNK_BYTES = 8 << 20
@@ -103,6 +105,7 @@ class MultiscaleTables:
     d_sat_cluster: np.ndarray | None = None
     d_cluster_mean: np.ndarray | None = None
     d_basis: np.ndarray | None = None
+    d_cluster_tile: np.ndarray | None = None
     params: dict = field(default_factory=dict)
     key: str = ""
 
@@ -191,18 +194,18 @@ def _int_param(name, value, lo, hi):
 AUTO_RANK = 64
 
 
-def choose_direction_rank(height: int, width: int, dr: int, requested: int, max_mib: float,
-                          per_cluster: bool = False, clusters: int = 8) -> tuple[int, str]:
+def choose_direction_rank(height: int, width: int, dr: int, requested: int, max_mib: float) -> tuple[int, str]:
     """The directional SAT's rank for a (height, width) tile: ``requested`` if set (> 0),
     else 0 (the full dr^2 channels) when that fits in ``max_mib`` MiB, else
     :data:`AUTO_RANK`, or the largest multiple of 4 that fits (at least 4).
 
     Returns (rank, why): ``why`` is empty unless the budget chose the rank. The per-cluster
-    tables of ``per_cluster`` multiply the channels by ``clusters`` + 1."""
+    tables of ``unbiased_ccv`` (8x more) are not counted: asking for them asks for their
+    memory, and a rank-K per-cluster base reads K channels per cluster and corner, which
+    makes kernels too large to compile in reasonable time."""
     if requested:
         return requested, ""
-    copies = clusters + 1 if per_cluster else 1
-    per_channel = (height + 1) * (width + 1) * 4 * copies / 2**20
+    per_channel = (height + 1) * (width + 1) * 4 / 2**20
     full = dr * dr * per_channel
     if full <= max_mib:
         return 0, ""
@@ -317,57 +320,9 @@ def build_tables(maps, roughness, dr: int = 16, dv: int = 8, clusters: int = 8,
     height = np.asarray(maps.height, dtype=np.float64)
     timings = {}
 
-    # Directional SAT of D(h_b, t) * gap.
-    t0 = time.perf_counter()
-    bins = bin_centres(dr)
-    B = len(bins)
-    chunk = max(1, min(B, _D_CHUNK_BYTES // (8 * N)))
-    a2, c_alpha = alpha * alpha, alpha ** 3 / np.pi
-
-    def produce_d(c0, c1, mask=None):
-        b = bins[c0:c1]
-        # Cosines h_b . t, (c, N); explicit sums beat a k=3 BLAS product by ~5x here.
-        c = np.multiply(b[:, 0, None], tangent_t[0])
-        c += b[:, 1, None] * tangent_t[1]
-        c += b[:, 2, None] * tangent_t[2]
-        np.square(c, out=c)
-        c *= 1.0 - a2
-        c += a2
-        np.square(c, out=c)
-        np.divide(c_alpha, c, out=c)
-        c *= gap if mask is None else gap * mask
-        return c.reshape(c1 - c0, H, W)
-
-    K = params["d_rank"]
-    d_basis = coef = None
-    if K:
-        d_basis = _d_basis(bins, tangent, gap, alpha, K, seed)
-        coef = np.zeros((K, N))
-        for c0 in range(0, B, chunk):
-            c1 = min(B, c0 + chunk)
-            coef += d_basis[c0:c1].T @ produce_d(c0, c1).reshape(c1 - c0, N)
-            prog("building rank-%d directional SAT" % K, c1, B, "bins")
-        d_sat, d_mean = build_sat(coef.reshape(K, H, W))
-        d_basis = d_basis.astype(np.float32)
-    else:
-        d_sat, d_mean = _sat_parallel(
-            B, H, W, produce_d, workers,
-            lambda d, n: prog("building directional SAT", d, n, "bins"), chunk)
-    timings["d_sat"] = time.perf_counter() - t0
-
-    # Small SATs.
-    t0 = time.perf_counter()
     g2 = gap.reshape(H, W)
-    gap_sat, gap_mean = build_sat(g2[None])
-    albedo = np.asarray(maps.albedo, dtype=np.float64) * g2[..., None]
-    albedo_sat, albedo_mean = build_sat(np.moveaxis(albedo, -1, 0))
-    tt = tangent.reshape(H, W, 3)
-    comps = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
-    moment = np.stack([tt[..., i] * tt[..., j] * g2 for i, j in comps])
-    moment_sat, moment_mean = build_sat(moment)
-    timings["small_sats"] = time.perf_counter() - t0
 
-    # Visibility, front and back.
+    # Visibility, front and back (first: the directional SAT's pass also sums D per cluster).
     t0 = time.perf_counter()
     vis_kw = dict(pitch=pitch, max_step=params["max_step"], eps=params["vis_eps"],
                   workers=workers, fast=params["fast_visibility"])
@@ -395,7 +350,66 @@ def build_tables(maps, roughness, dr: int = 16, dv: int = 8, clusters: int = 8,
                                if sel.any() else overall_back)
     onehot = np.stack([(ids == c).reshape(H, W) * g2 for c in range(clusters)]).astype(np.float64)
     cluster_sat, cluster_mean = build_sat(onehot)
+    # Each cluster's texels as columns: D * gap of a chunk of bins times this gives the
+    # clusters' sums (see d_cluster_tile).
+    cluster_columns = (ids[:, None] == np.arange(clusters)[None, :]).astype(np.float64)
     timings["clusters"] = time.perf_counter() - t0
+
+    # Directional SAT of D(h_b, t) * gap.
+    t0 = time.perf_counter()
+    bins = bin_centres(dr)
+    B = len(bins)
+    chunk = max(1, min(B, _D_CHUNK_BYTES // (8 * N)))
+    a2, c_alpha = alpha * alpha, alpha ** 3 / np.pi
+
+    def produce_d(c0, c1, mask=None):
+        b = bins[c0:c1]
+        # Cosines h_b . t, (c, N); explicit sums beat a k=3 BLAS product by ~5x here.
+        c = np.multiply(b[:, 0, None], tangent_t[0])
+        c += b[:, 1, None] * tangent_t[1]
+        c += b[:, 2, None] * tangent_t[2]
+        np.square(c, out=c)
+        c *= 1.0 - a2
+        c += a2
+        np.square(c, out=c)
+        np.divide(c_alpha, c, out=c)
+        c *= gap if mask is None else gap * mask
+        if mask is None:  # each chunk writes its own rows: safe from worker threads
+            d_cluster_sum[c0:c1] = c @ cluster_columns
+        return c.reshape(c1 - c0, H, W)
+
+    d_cluster_sum = np.zeros((B, clusters))
+    K = params["d_rank"]
+    d_basis = coef = None
+    if K:
+        d_basis = _d_basis(bins, tangent, gap, alpha, K, seed)
+        coef = np.zeros((K, N))
+        for c0 in range(0, B, chunk):
+            c1 = min(B, c0 + chunk)
+            coef += d_basis[c0:c1].T @ produce_d(c0, c1).reshape(c1 - c0, N)
+            prog("building rank-%d directional SAT" % K, c1, B, "bins")
+        d_sat, d_mean = build_sat(coef.reshape(K, H, W))
+        d_basis = d_basis.astype(np.float32)
+    else:
+        d_sat, d_mean = _sat_parallel(
+            B, H, W, produce_d, workers,
+            lambda d, n: prog("building directional SAT", d, n, "bins"), chunk)
+    timings["d_sat"] = time.perf_counter() - t0
+    # Mean of D * gap over each cluster's yarn, per bin (clusters of no yarn: the tile's).
+    cluster_yarn = onehot.reshape(clusters, N).sum(axis=1)
+    tile_mean = d_cluster_sum.sum(axis=1, keepdims=True) / max(float(gap.sum()), 1e-30)
+    d_cluster_tile = np.where(cluster_yarn > 0.0, d_cluster_sum / np.maximum(cluster_yarn, 1e-30), tile_mean)
+
+    # Small SATs.
+    t0 = time.perf_counter()
+    gap_sat, gap_mean = build_sat(g2[None])
+    albedo = np.asarray(maps.albedo, dtype=np.float64) * g2[..., None]
+    albedo_sat, albedo_mean = build_sat(np.moveaxis(albedo, -1, 0))
+    tt = tangent.reshape(H, W, 3)
+    comps = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)]
+    moment = np.stack([tt[..., i] * tt[..., j] * g2 for i, j in comps])
+    moment_sat, moment_mean = build_sat(moment)
+    timings["small_sats"] = time.perf_counter() - t0
 
     d_sat_cluster = d_cluster_mean = None
     if per_cluster_sat and K:
@@ -448,7 +462,7 @@ def build_tables(maps, roughness, dr: int = 16, dv: int = 8, clusters: int = 8,
         cluster_vis=cluster_vis.astype(np.float32),
         cluster_vis_back=cluster_vis_back.astype(np.float32), parallax=parallax,
         d_sat_cluster=d_sat_cluster, d_cluster_mean=d_cluster_mean, d_basis=d_basis,
-        params=info, key=key)
+        d_cluster_tile=d_cluster_tile.astype(np.float32), params=info, key=key)
     mib = sum(tables.memory_report().values()) / 2**20
     prog.note(f"tables built in {total:.2f} s, {mib:.1f} MiB")
     return tables
@@ -494,6 +508,7 @@ def _expected_shapes(params: dict, shape) -> dict:
         exp["d_cluster_mean"] = ((k, Bd), "float64")
     if K:
         exp["d_basis"] = ((B, K), "float32")
+    exp["d_cluster_tile"] = ((B, k), "float32")
     return exp
 
 
