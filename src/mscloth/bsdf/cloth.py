@@ -236,6 +236,7 @@ def make_cloth_class():
             self.use_parallax = p.parallax
             self.footprint_slices = p.footprint_slices
             self.footprint_data = None
+            self.direction_rank = p.direction_rank  # the rank built (see max_table_mib)
             if p.multiscale or p.visibility or p.parallax:
                 from ..precompute.tables import choose_direction_rank, load_or_build
 
