@@ -572,6 +572,7 @@ def run_compare(name: str, width: int, height: int, budget: float = 60.0, refere
         "machine": f"{platform.machine()}, {os.cpu_count()} cores",
         **regions,
         "regions": {"method": region_info["method"], "distance_thresholds": region_info["thresholds"],
+                    "pixels_used": "the same cloth shape at the pixel centre and its 8 neighbours' (no edges)",
                     "pixels": {g: int(masks[g].sum()) for g in REGIONS}, "cloth_pixels": int(cloth.sum())},
         "metrics": {
             "relmse": f"mean over region pixels and RGB of (img-ref)^2/(ref^2+{RELMSE_EPS:g})",

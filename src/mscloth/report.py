@@ -233,7 +233,9 @@ mscloth {esc(result['mscloth_version'])}; {esc(result['machine'])}; {time.strfti
 <p class="note">MS = multi-scale <code>cloth</code>, BF = brute force (the same scene with
 <code>"multiscale": false</code>: fibre-level shading, supersampled). relMSE: {esc(metrics['relmse'])}.
 FLIP: {esc(metrics['flip'])}. Seconds: {esc(metrics['seconds'])}. Speed-up: {esc(metrics['speedup'])}.
-Regions: pixels whose centre sees cloth, split by camera distance ({esc(result['regions']['method'])};
+Regions: pixels whose centre and 8 neighbours' centres see the same cloth shape (pixels on
+silhouettes and seams carry the edge's anti-aliasing noise, the same for both methods), split by camera
+distance ({esc(result['regions']['method'])};
 thresholds {thresholds[0]:.3g} and {thresholds[1]:.3g} scene units).
 Kernel compilation (excluded): multi-scale {result['compile_seconds']['multiscale']:.1f} s,
 brute force {result['compile_seconds']['bruteforce']:.1f} s.</p>
