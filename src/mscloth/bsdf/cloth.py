@@ -574,7 +574,7 @@ def make_cloth_class():
             st["eps_c"] = eps_c = dr.select(fp["use"], self.DEFENSIVE_COSINE * dr.sqrt(yarn_share), 0.0)
             # Its lower (transmission) share follows the diffuse lobes' split, at least a
             # tenth on either side: at grazing angles a fixed half wasted 5% of samples.
-            p_dr, p_dt = st["fp_probs"][DIFFUSE_REFLECTION], st["fp_probs"][DIFFUSE_TRANSMISSION]
+            p_dr, p_dt = probs[DIFFUSE_REFLECTION], probs[DIFFUSE_TRANSMISSION]
             diffuse = p_dr + p_dt
             lower = dr.select(diffuse > 0.0, p_dt / dr.select(diffuse > 0.0, diffuse, 1.0), 0.5)
             st["eps_lower"] = eps_c * dr.clip(lower, self.DEFENSIVE_MIN_SIDE, 1.0 - self.DEFENSIVE_MIN_SIDE)
@@ -633,6 +633,8 @@ def make_cloth_class():
                 g_k = [g_of(sggx.projected_area(wi, t_["tangent"], self.roughness),
                             sggx.projected_area(wo, t_["tangent"], self.roughness)) for t_ in texels]
                 if self.use_visibility:
+                    # Alg. 4's visibility: the mean v_c of the residual texels' clusters.
+                    texel_mean = 0.25 * (vbar_p[0] + vbar_p[1] + vbar_p[2] + vbar_p[3])
                     if fd.per_cluster:
                         base = mi.Float(0.0)
                         for c in range(fd.clusters):
@@ -641,8 +643,8 @@ def make_cloth_class():
                     elif fd.d_cluster_tile is not None:
                         # Each cluster's visibility weighted by its share of the footprint's D:
                         # its share of the footprint times its mean D over the tile. Exact for
-                        # footprints of whole tiles; Alg. 4's mean over the residual texels
-                        # (below) is off by -Cov(D, v) at every size (docs/decisions.md).
+                        # footprints of whole tiles; Alg. 4's texel_mean (the fallback) is off
+                        # by -Cov(D, v) at every size (docs/decisions.md).
                         m_c = fd.cluster_d_means(bin_h)
                         num = mi.Float(0.0)
                         den = mi.Float(0.0)
@@ -650,10 +652,9 @@ def make_cloth_class():
                             w_c = st["fractions"][c] * m_c[c]
                             num += w_c * st["cvis_i"][c] * cvis_o[c]
                             den += w_c
-                        texel_mean = 0.25 * (vbar_p[0] + vbar_p[1] + vbar_p[2] + vbar_p[3])
                         base = d_yarn * dr.select(den > 0.0, num / dr.select(den > 0.0, den, 1.0), texel_mean)
                     else:
-                        base = d_yarn * 0.25 * (vbar_p[0] + vbar_p[1] + vbar_p[2] + vbar_p[3])
+                        base = d_yarn * texel_mean
                     residual = mi.Float(0.0)
                     for d, g, v, vbar in zip(d_k, g_k, v_p, vbar_p):
                         residual += d * (v * g - vbar * g_bar)

@@ -7,8 +7,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .sat_queries import (ResidualSATs, flat_array, flat_word_array, gather, gather_block, gather_word,
-                          hemisphere_bins)
+from ..jit_arrays import flat_array, flat_word_array, gather, gather_block, gather_word
+from .sat_queries import ResidualSATs, hemisphere_bins
 
 
 class FootprintData:

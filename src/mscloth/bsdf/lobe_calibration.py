@@ -22,8 +22,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..jit_arrays import flat_array, gather
 from .lobes import DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, SHEEN, SPECULAR_REFLECTION, SPECULAR_TRANSMISSION
-from .sat_queries import flat_array, gather
 
 #: Lobes with a measured ratio: (proxy slot, components whose albedos it covers). The
 #: specular proxy stands for the flake lobe, which reflects and transmits.

@@ -2,7 +2,7 @@
 
 Sampling a tabulated lobe by inverting its CDF costs a binary search per sample, a chain
 of dependent gathers (12 for a 64 x 64 table): the fibre-level BSDF's kernel time grew by
-40% with its sheen and diffuse tables. An alias table picks a cell with one read: cell j
+58% with its sheen and diffuse tables. An alias table picks a cell with one read: cell j
 with probability N p_j / N, else its alias, and what is left of the uniform number places
 the sample inside the cell.
 """
@@ -11,6 +11,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+
+from ..jit_arrays import flat_array, flat_word_array, gather, gather_word
 
 #: The largest float32 below 1.
 ONE_MINUS_EPSILON = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
@@ -53,13 +55,6 @@ def realised_probabilities(threshold: np.ndarray, alias: np.ndarray) -> np.ndarr
     return prob / n
 
 
-def _read(values, index):
-    """values[index] per lane: a gather in JIT variants, an element in scalar ones."""
-    if dr.is_jit_v(mi.Float):
-        return dr.gather(type(values), values, index)
-    return values[int(index)]
-
-
 class AliasTable:
     """``rows`` discrete distributions over ``cells`` cells each, in Dr.Jit memory.
 
@@ -71,22 +66,8 @@ class AliasTable:
         self.rows, self.cells = threshold.shape
         threshold = threshold.astype(np.float32)
         self.probabilities = realised_probabilities(threshold.astype(np.float64), alias)
-        if dr.is_jit_v(mi.Float):
-            self._threshold = mi.Float(threshold.ravel())
-            self._alias = mi.UInt32(alias.astype(np.uint32).ravel())
-        else:
-            self._threshold = [float(x) for x in threshold.ravel()]
-            self._alias = [int(x) for x in alias.ravel()]
-
-    def read(self, values, index):
-        """``values[index]`` for a flat per-cell array made by :meth:`upload`."""
-        return _read(values, index)
-
-    @staticmethod
-    def upload(values: np.ndarray):
-        """A flat float array of per-cell values (e.g. densities) that :meth:`read` reads."""
-        flat = np.asarray(values, dtype=np.float32).ravel()
-        return mi.Float(flat) if dr.is_jit_v(mi.Float) else [float(x) for x in flat]
+        self._threshold = flat_array(threshold)
+        self._alias = flat_word_array(alias)
 
     def sample(self, row, u):
         """(cell, v): a cell of distribution ``row`` for a uniform ``u`` in [0, 1), and a
@@ -96,8 +77,8 @@ class AliasTable:
         j = mi.UInt32(dr.clip(dr.floor(x), 0, self.cells - 1))
         frac = x - mi.Float(j)
         index = row * self.cells + j
-        t = _read(self._threshold, index)
+        t = gather(self._threshold, index)
         keep = frac < t
-        cell = dr.select(keep, j, mi.UInt32(_read(self._alias, index)))
+        cell = dr.select(keep, j, mi.UInt32(gather_word(self._alias, index)))
         v = dr.select(keep, frac / dr.maximum(t, 1e-12), (frac - t) / dr.maximum(1.0 - t, 1e-12))
         return cell, dr.clip(v, 0.0, ONE_MINUS_EPSILON)

@@ -22,6 +22,7 @@ import mitsuba as mi
 import numpy as np
 
 from . import spongecake
+from ..jit_arrays import flat_array, gather
 from .alias_table import AliasTable
 
 
@@ -114,7 +115,7 @@ class TabulatedSheenSampler:
         self.cells = AliasTable(mass)
         # The solid-angle pdf inside each cell: its realised probability over its size.
         self.density = self.cells.probabilities.reshape(n_mu, n_y, n_x) / solid_angle
-        self._density = AliasTable.upload(self.density)
+        self._density = flat_array(self.density)
 
     @classmethod
     def build(cls, alpha_s, thickness_s, n_mu: int = 48, n_y: int = 64, n_x: int = 64):
@@ -159,7 +160,7 @@ class TabulatedSheenSampler:
         sin_phi, cos_phi = dr.sincos(2.0 * dr.pi * x)
         sin_o = dr.safe_sqrt(1.0 - y * y)
         wo = mi.Vector3f(sin_o * (c * cos_phi - s * sin_phi), sin_o * (s * cos_phi + c * sin_phi), y)
-        return wo, self.cells.read(self._density, k * (self.n_y * self.n_x) + cell)
+        return wo, gather(self._density, k * (self.n_y * self.n_x) + cell)
 
     def pdf(self, wi, wo):
         """Solid-angle density of :meth:`sample` (zero for wo below)."""
@@ -169,7 +170,7 @@ class TabulatedSheenSampler:
         ix = mi.UInt32(dr.clip(dr.floor(x * self.n_x), 0, self.n_x - 1))
         iy = mi.UInt32(dr.clip(dr.floor(dr.safe_sqrt(wo.z) * self.n_y), 0, self.n_y - 1))
         above = wo.z > 0.0
-        density = dr.gather(mi.Float, self._density, (self._band(wi) * self.n_y + iy) * self.n_x + ix, above)
+        density = gather(self._density, (self._band(wi) * self.n_y + iy) * self.n_x + ix, above)
         return dr.select(above, density, 0.0)
 
 
@@ -199,7 +200,7 @@ class FuzzCosineSampler:
         self.n = cells
         self.cells = AliasTable(mass[None, :])
         # Solid-angle density: cell probability / (cell width * 2 pi).
-        self._density = AliasTable.upload(self.cells.probabilities[0] * cells * (0.5 / np.pi))
+        self._density = flat_array(self.cells.probabilities[0] * cells * (0.5 / np.pi))
 
     def sample(self, u):
         cell, v = self.cells.sample(0, u.x)
@@ -210,4 +211,4 @@ class FuzzCosineSampler:
 
     def pdf(self, w):
         cell = mi.UInt32(dr.clip(dr.floor(dr.abs(w.z) * self.n), 0, self.n - 1))
-        return self.cells.read(self._density, cell)
+        return gather(self._density, cell)

@@ -1,0 +1,50 @@
+"""Flat arrays in Dr.Jit memory and per-lane reads from them, in every variant (JIT
+arrays in llvm/cuda, plain containers in scalar variants): the lookup tables of the BSDF
+(summed-area tables, visibility, calibration) and of its samplers (alias tables)."""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+
+def flat_array(values: np.ndarray):
+    """A flat float32 Dr.Jit array of ``values`` that ``dr.gather`` reads, in every variant
+    (a JIT array in llvm/cuda, a dynamic array in scalar variants)."""
+    values = np.ascontiguousarray(np.asarray(values, dtype=np.float32).ravel())
+    return mi.TensorXf(values).array
+
+
+def gather(source, index, active=True):
+    """``source[index]`` per lane (0 where not ``active``), in JIT and scalar variants."""
+    if dr.is_jit_v(mi.Float):
+        return dr.gather(mi.Float, source, index, active)
+    return source[int(index)] if active else 0.0
+
+
+def flat_word_array(values: np.ndarray):
+    """A flat uint32 array of ``values`` for :func:`gather_word`."""
+    values = np.ascontiguousarray(np.asarray(values, dtype=np.uint32).ravel())
+    if dr.is_jit_v(mi.Float):
+        return mi.UInt32(values)
+    return values
+
+
+def gather_word(source, index, active=True):
+    """``source[index]`` of a :func:`flat_word_array` per lane (0 where not ``active``)."""
+    if dr.is_jit_v(mi.Float):
+        return dr.gather(mi.UInt32, source, index, active)
+    return int(source[int(index)]) if active else 0
+
+
+def gather_block(source, start, n: int, active=True):
+    """[source[start + j] for j < n] per lane, ``start`` a multiple of 4 when n is: read as
+    packets of four neighbours (one vector load each instead of four gathers)."""
+    if dr.is_jit_v(mi.Float) and n % 4 == 0:
+        out = []
+        first = start // 4
+        for j in range(n // 4):
+            v = dr.gather(mi.Vector4f, source, first + j, active)
+            out += [v.x, v.y, v.z, v.w]
+        return out
+    return [gather(source, start + j, active) for j in range(n)]
