@@ -329,13 +329,15 @@ def test_bsdf_receives_the_first_hit_footprint():
     assert np.allclose(img[c, c, 0], 10.0 * img[c, c, 3], rtol=1e-4)  # = 10 x the AOV
 
 
-def mirror_scene(mirror_bsdf: dict | None, d1: float = 2.0, d2: float = 2.0) -> dict:
+def mirror_scene(mirror_bsdf: dict | None, d1: float = 2.0, d2: float = 2.0, **integrator) -> dict:
     """A probe square (half-size 5, so dp_du = 10) seen head-on at total distance d1 + d2:
-    directly (``mirror_bsdf`` None) or via a mirror at distance d1 (45 degrees incidence)."""
+    directly (``mirror_bsdf`` None) or via a mirror at distance d1 (45 degrees incidence).
+    ``integrator``: further clothpath properties."""
     res, fov = 8, 4.0
     film = {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}}
     probe = {"type": "rectangle", "bsdf": {"type": "footprint_probe", "scale": 100.0}}
-    s = {"type": "scene", "integrator": {"type": "clothpath", "footprint_aovs": True}, "sky": {"type": "constant"}}
+    s = {"type": "scene", "integrator": {"type": "clothpath", "footprint_aovs": True, **integrator},
+         "sky": {"type": "constant"}}
     if mirror_bsdf is None:
         s["sensor"] = {"type": "perspective", "fov": fov, "near_clip": 1e-4, "film": film,
                        "to_world": mi.ScalarTransform4f().look_at(
@@ -372,10 +374,22 @@ def test_footprint_after_a_rough_bounce_is_larger():
     lobe of GGX alpha 0.2 adds ~0.5 rad). Without widening it would be about equal."""
     direct = render(mi.load_dict(mirror_scene(None)), 16, 0)[3:5, 3:5, 0].mean()
     rough = render(mi.load_dict(mirror_scene({"type": "roughconductor", "material": "none",
-                                              "alpha": 0.2})), 16, 0)[3:5, 3:5, 0].mean()
+                                              "alpha": 0.2}, scattered_footprints=True)), 16, 0)[3:5, 3:5, 0].mean()
     assert rough > 10 * direct, (rough, direct)
     # ... yet bounded: the widest possible cone (MAX_SPREAD over d2 = 2) projected head-on.
     assert rough < 100.0 * (fp.MAX_SPREAD * 2.0 + 0.1) / 10.0 / 2 * 1.5
+
+
+def test_no_footprint_after_a_rough_bounce_by_default():
+    """By default only camera rays and their delta chains carry footprints: behind a rough
+    mirror the probe sees a zero footprint, behind a smooth one the cone's."""
+    rough = render(mi.load_dict(mirror_scene({"type": "roughconductor", "material": "none",
+                                              "alpha": 0.2})), 16, 0)[3:5, 3:5, 0]
+    assert np.all(rough == 0.0), rough
+    smooth = render(mi.load_dict(mirror_scene({"type": "conductor", "material": "none"})), 4, 0)[3:5, 3:5, 0]
+    assert np.all(smooth > 0.0), smooth
+    with pytest.raises(Exception, match="\"scattered_footprints\" must be a boolean"):
+        mi.load_dict({"type": "clothpath", "scattered_footprints": 1})
 
 
 # ----------------------------------------------------------------------------------------

@@ -47,8 +47,8 @@ def test_scalar_variant_agrees_with_llvm(footprint):
 
     The footprint's stratified texels and SAT rounding come from a hash of the uv, which
     Python's double-precision scalar arithmetic computes differently: both variants get the
-    same fixed numbers instead. Scalar variants neither measure the lobe calibration nor
-    tabulate the sheen: the scalar BSDF gets the LLVM one's calibration, and the LLVM one
+    same fixed numbers instead. Scalar variants neither measure the lobe calibrations nor
+    tabulate the sheen: the scalar BSDF gets the LLVM one's calibrations, and the LLVM one
     samples the sheen like the scalar one (the table has its own tests)."""
     wi, wo, uv = [0.3, -0.2, 0.93], [-0.4, 0.1, 0.91], [0.26, 0.13]
     ratios = []
@@ -60,9 +60,11 @@ def test_scalar_variant_agrees_with_llvm(footprint):
             assert bsdf.lobe_calibration is None
             assert isinstance(bsdf.sheen_sampler, sheen.FoldedSheenSampler)
             bsdf.lobe_calibration = LobeCalibration(ratios[0])
+            bsdf.footprint_calibration = LobeCalibration(*ratios[1])
         else:
             assert isinstance(bsdf.sheen_sampler, sheen.TabulatedSheenSampler)
             ratios.append(bsdf.lobe_calibration.ratios)
+            ratios.append((bsdf.footprint_calibration.albedo_ratios, bsdf.footprint_calibration.factors))
             bsdf.sheen_sampler = sheen.FoldedSheenSampler(bsdf.sheen_roughness)
         si = dr.zeros(mi.SurfaceInteraction3f)
         si.wi = dr.normalize(mi.Vector3f(wi))

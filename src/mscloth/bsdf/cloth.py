@@ -13,7 +13,7 @@ import numpy as np
 from ..maps.builtin import resolve_pattern
 from ..scattering import sggx, sheen, spongecake
 from .footprint_data import FootprintData
-from .lobe_calibration import LobeCalibration, measure_ratios
+from .lobe_calibration import calibrate
 from .lobes import (DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN,
                     SPECULAR_REFLECTION, SPECULAR_TRANSMISSION)
 from .sat_queries import hemisphere_bins, pick_bin
@@ -264,12 +264,18 @@ def make_cloth_class():
             if dr.is_jit_v(mi.Float) and p.sheen_thickness > 0.0:
                 with dr.suspend_grad():
                     self.sheen_sampler = sheen.TabulatedSheenSampler.build(p.sheen_roughness, p.sheen_thickness)
-            # Lobe selection matched to the lobes' albedos, measured once (JIT variants;
-            # scalar variants, for unit tests, keep the uncalibrated proxies).
+            # Lobe selection matched to the lobes' albedos, and for footprints to the
+            # footprint mixture's weights, measured once (JIT variants; scalar variants, for
+            # unit tests, keep the uncalibrated proxies).
             self.lobe_calibration = None
+            self.footprint_calibration = None
             if dr.is_jit_v(mi.Float):
+                texel_uv = None
+                if self.multiscale:
+                    texel_uv = (1.0 / (p.uv_scale * self.tile_w),
+                                1.0 / ((p.uv_scale_v or p.uv_scale * width_mm / height_mm) * self.tile_h))
                 with dr.suspend_grad():
-                    self.lobe_calibration = LobeCalibration(measure_ratios(self, self._point_proxies))
+                    self.lobe_calibration, self.footprint_calibration = calibrate(self, self._point_proxies, texel_uv)
 
         def _upload_maps(self, maps):
             fibre = np.concatenate([maps.tangent, maps.gap[..., None]], axis=-1).astype(np.float32)
@@ -377,7 +383,8 @@ def make_cloth_class():
         def _lobe_probabilities(self, pt, enabled):
             """Selection probabilities of the texel's lobes, proportional to each lobe's
             estimated albedo."""
-            return self._lobe_weights(pt["k"], pt["wi"], pt["yarn"], pt["t_sheen_i"], self._scattered(pt), enabled)
+            return self._lobe_weights(pt["k"], pt["wi"], pt["yarn"], pt["t_sheen_i"], self._scattered(pt), enabled,
+                                      self.lobe_calibration)
 
         def _scattered(self, pt):
             """The share of light the texel's specular slab scatters (for its proxy)."""
@@ -389,14 +396,13 @@ def make_cloth_class():
             pt = self._texel(fr, fr["x"], fr["y"])
             return self._lobe_proxies(pt["k"], pt["wi"], pt["yarn"], pt["t_sheen_i"], self._scattered(pt), [True] * 6)
 
-        def _lobe_weights(self, k, wi, yarn, ts, scattered, enabled):
-            """Normalised albedo estimates of the six lobes for yarn coverage ``yarn``, lobe
-            albedos ``k`` (yarn colour included) and scattered fraction ``scattered``: the
-            proxies times their measured ratios to the lobes' albedos
-            (:mod:`.lobe_calibration`)."""
+        def _lobe_weights(self, k, wi, yarn, ts, scattered, enabled, calibration):
+            """Normalised lobe probabilities for yarn coverage ``yarn``, lobe albedos ``k``
+            (yarn colour included) and scattered fraction ``scattered``: the proxies times
+            ``calibration``'s ratios (:mod:`.lobe_calibration`; None: the raw proxies)."""
             w = self._lobe_proxies(k, wi, yarn, ts, scattered, enabled)
-            if self.lobe_calibration is not None:
-                w = self.lobe_calibration.scale(w, wi.z)
+            if calibration is not None:
+                w = calibration.scale(w, wi.z)
             total = w[0] + w[1] + w[2] + w[3] + w[4] + w[5]
             inv = dr.select(total > 0.0, dr.rcp(total), 0.0)
             return [wk * inv for wk in w]
@@ -562,7 +568,8 @@ def make_cloth_class():
             if "moments" in st:
                 sigma_i = self._mean_sigma(st, fr["wi"])
                 scattered = 1.0 - spongecake.unscattered_transmittance_from(sigma_i, fr["wi"], self.thickness)
-            st["fp_probs"] = self._lobe_weights(k, fr["wi"], yarn_mean, fr["t_sheen_i"], scattered, enabled)
+            st["fp_probs"] = self._lobe_weights(k, fr["wi"], yarn_mean, fr["t_sheen_i"], scattered, enabled,
+                                                self.footprint_calibration)
             # Scaled by the square root of the yarn lobes' share: it guards them (the four
             # texels' tangents may miss some of the footprint's), and the sheen, sampled from
             # its own table, needs no guard. A fixed share spent a tenth of the samples at

@@ -15,6 +15,18 @@ azimuths) to the mean of its proxy, and the sampler multiplies each proxy by its
 Any positive factor keeps sampling unbiased (``pdf`` uses the same probabilities); good
 ones cut the variance of the sample weight at 40-75 degrees 3-4x for footprints and
 1.1-1.4x at the fibre level (docs/decisions.md).
+
+Albedo shares are the best choice only where every lobe samples its own shape exactly.
+Where one does not (the flake lobe's transmitted half; the footprint mixture, which samples
+the specular lobe from four texels' tangents and adds a defensive cosine), its samples come
+back with spread weights, and where lobes overlap, one lobe's samples carry another's
+light. For the footprint mixture a second pass samples whole footprints with the albedo
+ratios and scales each lobe's probability by the root mean square of its samples' weights
+(:func:`measure_share_factors`): the choice that minimises the second moment of the weight
+when a lobe's weights scale inversely with its probability, which holds exactly for the
+delta gap and closely for the others. At the fibre level that assumption fails (a texel is
+all gap or all yarn, so the gap's probability is 0 or nearly 1 whatever its factor), and
+the pass gained only 2-3% there; the fibre-level sampler keeps the albedo ratios.
 """
 from __future__ import annotations
 
@@ -23,15 +35,71 @@ import mitsuba as mi
 import numpy as np
 
 from ..jit_arrays import flat_array, gather
-from .lobes import DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, SHEEN, SPECULAR_REFLECTION, SPECULAR_TRANSMISSION
+from .lobes import (DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN, SPECULAR_REFLECTION,
+                    SPECULAR_TRANSMISSION)
 
 #: Lobes with a measured ratio: (proxy slot, components whose albedos it covers). The
-#: specular proxy stands for the flake lobe, which reflects and transmits.
+#: specular proxy stands for the flake lobe, which reflects and transmits. The gap's proxy
+#: is its albedo (ratio 1); it takes part in the second pass.
 CALIBRATED = ((SHEEN, (SHEEN,)), (SPECULAR_REFLECTION, (SPECULAR_REFLECTION, SPECULAR_TRANSMISSION)),
-              (DIFFUSE_REFLECTION, (DIFFUSE_REFLECTION,)), (DIFFUSE_TRANSMISSION, (DIFFUSE_TRANSMISSION,)))
+              (DIFFUSE_REFLECTION, (DIFFUSE_REFLECTION,)), (DIFFUSE_TRANSMISSION, (DIFFUSE_TRANSMISSION,)),
+              (GAP, (GAP,)))
 #: No lobe drops below this share of its proxy, so that each stays reachable wherever the
 #: measurement saw (nearly) nothing of it.
 MIN_RATIO = 0.02
+#: The second stage moves a lobe's probability by at most this factor either way, so that
+#: every lobe stays well reachable (its weights' second moments come from a few hundred
+#: samples per cosine, heavy-tailed for some lobes).
+MAX_SHARE_FACTOR = 4.0
+#: A lobe needs this many of the second pass's samples at a cosine to be rescaled there.
+MIN_SHARE_SAMPLES = 64
+
+
+def _lanes(nodes: int, lanes: int, seed: int):
+    """Fibre-level shading points (zero footprint; uv_scale 1) at cos(theta_i) =
+    (j + 1/2) / nodes, ``lanes`` random texels and azimuths per node, and their two sample
+    arguments."""
+    rng = np.random.default_rng(seed)
+    mu = np.repeat((np.arange(nodes) + 0.5) / nodes, lanes)
+    n = mu.size
+    phi = rng.random(n) * 2.0 * np.pi
+    sin_t = np.sqrt(1.0 - mu * mu)
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.wi = mi.Vector3f(sin_t * np.cos(phi), sin_t * np.sin(phi), mu)
+    si.uv = mi.Point2f(rng.random(n), rng.random(n))
+    return si, mi.Float(rng.random(n)), mi.Point2f(rng.random(n), rng.random(n))
+
+
+#: Footprint width (texels) at which the second pass samples the footprint mixture.
+SHARE_FOOTPRINT_TEXELS = 64.0
+#: Passes of the second stage, each on fresh samples with the factors so far: the factors
+#: move towards the fixed point where every lobe's weights have the same root mean square
+#: (weight variance of the plane's twill, 20 / 60 degrees: albedo ratios 0.126 / 0.128,
+#: after one pass 0.096 / 0.095, after six 0.043 / 0.048, after twelve 0.037 / 0.039).
+SHARE_PASSES = 6
+
+
+def calibrate(bsdf, proxies_at, texel_uv=None, nodes: int = 16, lanes: int = 1024, seed: int = 0):
+    """(fibre-level calibration, footprint calibration or None): the albedo ratios
+    (:func:`measure_ratios`), and for a multi-scale BSDF (``texel_uv``: the (u, v) size of
+    one texel) the same times the share factors of the footprint mixture measured with
+    them in place (:func:`measure_share_factors`).
+    Leaves ``bsdf.lobe_calibration`` and ``bsdf.footprint_calibration`` as it found them."""
+    point = LobeCalibration(measure_ratios(bsdf, proxies_at, nodes, lanes, seed))
+    if texel_uv is None:
+        return point, None
+    before = bsdf.footprint_calibration
+    footprint_uv = (SHARE_FOOTPRINT_TEXELS * texel_uv[0], SHARE_FOOTPRINT_TEXELS * texel_uv[1])
+    calibration = LobeCalibration(point.albedo_ratios)  # its own table: one kernel for every pass
+    try:
+        for k in range(SHARE_PASSES):
+            bsdf.footprint_calibration = calibration
+            factors = calibration.factors * measure_share_factors(bsdf, footprint_uv, nodes, 4 * lanes, seed + 1 + k)
+            calibration = LobeCalibration(point.albedo_ratios,
+                                          np.clip(factors, 1.0 / MAX_SHARE_FACTOR, MAX_SHARE_FACTOR))
+    finally:
+        bsdf.footprint_calibration = before
+    return point, calibration
 
 
 def measure_ratios(bsdf, proxies_at, nodes: int = 16, lanes: int = 1024, seed: int = 0) -> np.ndarray:
@@ -41,17 +109,7 @@ def measure_ratios(bsdf, proxies_at, nodes: int = 16, lanes: int = 1024, seed: i
 
     ``proxies_at(si)``: the BSDF's unnormalised proxies (six per-lane values) at the
     fibre-level texels of ``si``."""
-    rng = np.random.default_rng(seed)
-    mu = np.repeat((np.arange(nodes) + 0.5) / nodes, lanes)
-    n = mu.size
-    phi = rng.random(n) * 2.0 * np.pi
-    sin_t = np.sqrt(1.0 - mu * mu)
-    si = dr.zeros(mi.SurfaceInteraction3f, n)  # zero footprint: the fibre-level BSDF
-    si.wi = mi.Vector3f(sin_t * np.cos(phi), sin_t * np.sin(phi), mu)
-    si.uv = mi.Point2f(rng.random(n), rng.random(n))
-    s1 = mi.Float(rng.random(n))
-    s2 = mi.Point2f(rng.random(n), rng.random(n))
-
+    si, s1, s2 = _lanes(nodes, lanes, seed)
     albedo = {}
     for component in sorted({c for _, comps in CALIBRATED for c in comps}):
         ctx = mi.BSDFContext()
@@ -75,11 +133,55 @@ def measure_ratios(bsdf, proxies_at, nodes: int = 16, lanes: int = 1024, seed: i
     return np.maximum(ratios, MIN_RATIO * np.maximum(top, 1e-6))
 
 
-class LobeCalibration:
-    """The measured ratios in Dr.Jit memory, interpolated linearly in cos(theta_i)."""
+def measure_share_factors(bsdf, footprint_uv, nodes: int = 16, lanes: int = 4096, seed: int = 1) -> np.ndarray:
+    """(len(CALIBRATED), nodes) factors on the lobes' probabilities, from samples of the
+    whole mixture as ``bsdf`` samples it now, on footprints ``footprint_uv`` = (width,
+    height) in uv at random places.
 
-    def __init__(self, ratios: np.ndarray):
-        self.ratios = np.asarray(ratios, dtype=np.float64)
+    Where lobe g is picked with probability p_g and its samples' weights have second moment
+    E[w^2 | g], the weight's second moment is sum_g p_g E[w^2 | g]. If g's weights scale as
+    1/p_g (exact for the delta gap; close for lobes that overlap little), the choice
+    p'_g ~ sqrt(p_g^2 E[w^2 | g]) minimises it: a factor sqrt(E[w^2 | g]) on p_g, the root
+    mean square of g's weights. Normalised to a p-weighted mean of 1 per node; lobes with
+    fewer than MIN_SHARE_SAMPLES samples at a node keep factor 1 there."""
+    si, s1, s2 = _lanes(nodes, lanes, seed)
+    si.duv_dx = mi.Vector2f(footprint_uv[0], 0.0)
+    si.duv_dy = mi.Vector2f(0.0, footprint_uv[1])
+    # Inputs evaluated first, so that every pass traces the same kernel (compiled once).
+    dr.eval(si, s1, s2)
+    bs, weight = bsdf.sample(mi.BSDFContext(), si, s1, s2)
+    dr.eval(bs.sampled_component, weight)
+    w = np.asarray(weight, dtype=np.float64).mean(axis=0).reshape(nodes, lanes)
+    comp = np.asarray(bs.sampled_component).reshape(nodes, lanes)
+    ok = np.isfinite(w) & (np.asarray(bs.pdf).reshape(nodes, lanes) > 0.0)
+    factors = np.ones((len(CALIBRATED), nodes))
+    for j in range(nodes):
+        picked = np.zeros(len(CALIBRATED))
+        for row, (_, comps) in enumerate(CALIBRATED):
+            mine = ok[j] & np.isin(comp[j], comps)
+            picked[row] = mine.sum()
+            if picked[row] >= MIN_SHARE_SAMPLES:
+                rms = np.sqrt(np.mean(w[j][mine] ** 2))
+                factors[row, j] = rms if rms > 0.0 else 1.0
+        seen = picked >= MIN_SHARE_SAMPLES
+        if seen.any():
+            # Unseen lobes keep the seen ones' mean, so only the seen ones move.
+            mean = np.sum(picked[seen] * factors[seen, j]) / picked[seen].sum()
+            factors[:, j] = np.where(seen, factors[:, j] / mean, 1.0)
+    return np.clip(factors, 1.0 / MAX_SHARE_FACTOR, MAX_SHARE_FACTOR)
+
+
+class LobeCalibration:
+    """The measured ratios (times the share factors, if any) in Dr.Jit memory, interpolated
+    linearly in cos(theta_i). ``albedo_ratios``: the first pass alone."""
+
+    def __init__(self, ratios: np.ndarray, factors: np.ndarray | None = None):
+        self.albedo_ratios = np.asarray(ratios, dtype=np.float64)
+        self.factors = np.ones_like(self.albedo_ratios) if factors is None else np.asarray(factors, np.float64)
+        if self.factors.shape != self.albedo_ratios.shape:
+            raise ValueError(f"LobeCalibration: factors of shape {self.factors.shape}, "
+                             f"expected the ratios' {self.albedo_ratios.shape}")
+        self.ratios = self.albedo_ratios * self.factors
         self.rows, self.nodes = self.ratios.shape
         # Node-major, the rows of one node side by side: one cache line per lookup.
         self.table = flat_array(self.ratios.T)

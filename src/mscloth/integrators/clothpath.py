@@ -29,7 +29,11 @@ the scene).
   footprints (``footprint_shading``: multi-scale ``cloth``) get the uv of the pixel centre
   (perspective and orthographic cameras), so a pixel is its footprint's average;
 * later hits: a ray cone whose width grows with distance and whose spread grows at each
-  non-delta bounce by 2/sqrt(pi pdf) (see :mod:`mscloth.integrators.footprint`).
+  non-delta bounce by 2/sqrt(pi pdf) (see :mod:`mscloth.integrators.footprint`);
+* after a non-delta bounce (``scattered_footprints`` false, the default): a zero footprint,
+  so BSDFs shade the hit point. The path's own random hit point then samples the cone's
+  footprint, with the same expectation as shading it whole; the cone's filtering matters
+  along mirror, glass and gap chains (delta bounces), which keep it.
 
 Footprint convention: the footprint of a shading point is the axis-aligned UV rectangle
 centred on ``si.uv`` with half-widths 1/2 (|du/dx| + |du/dy|) and 1/2 (|dv/dx| + |dv/dy|).
@@ -62,6 +66,14 @@ centred on ``si.uv`` with half-widths 1/2 (|du/dx| + |du/dy|) and 1/2 (|dv/dx| +
        environment (``constant``), which BSDF sampling alone reaches with less noise;
        ``one``: pick one emitter per vertex as Mitsuba's ``path`` does (same image with
        the same seed).
+   * - scattered_footprints
+     - boolean
+     - false
+     - Hand BSDFs ray-cone footprints after non-delta bounces too. Off, a hit after a
+       rough bounce is shaded at its point (footprint zero): it costs a multi-scale
+       ``cloth`` a fibre-level evaluation instead of a footprint one (``sphere`` scene:
+       about half the render time) at the same per-pixel noise, since such a path's light
+       is already spread over the cone by the bounce (``docs/decisions.md``).
    * - emitter_samples
      - integer
      - 1
@@ -185,6 +197,10 @@ def make_clothpath_class():
             if not isinstance(self.footprint_aovs, bool):
                 raise ValueError('clothpath: "footprint_aovs" must be a boolean, '
                                  f"got {self.footprint_aovs!r}")
+            self.scattered_footprints = props.get("scattered_footprints", False)
+            if not isinstance(self.scattered_footprints, bool):
+                raise ValueError('clothpath: "scattered_footprints" must be a boolean, '
+                                 f"got {self.scattered_footprints!r}")
 
         def aov_names(self):
             return list(AOV_NAMES) if self.footprint_aovs else []
@@ -194,7 +210,8 @@ def make_clothpath_class():
             return (f"ClothPathIntegrator[max_depth = {depth}, rr_depth = {self.rr_depth}, "
                     f"hide_emitters = {self.hide_emitters}, "
                     f"emitter_sampling = {self.emitter_sampling}, "
-                    f"emitter_samples = {self.emitter_samples}]")
+                    f"emitter_samples = {self.emitter_samples}, "
+                    f"scattered_footprints = {self.scattered_footprints}]")
 
         def sample(self, scene, sampler, ray, medium=None, active=True):
             if self.max_depth == 0:
@@ -240,6 +257,7 @@ def make_clothpath_class():
             hide_emitters = self.hide_emitters
             o_x, d_x, o_y, d_y = ray_d.o_x, ray_d.d_x, ray_d.o_y, ray_d.d_y  # loop-invariant
             footprint_aovs = self.footprint_aovs
+            scattered_footprints = self.scattered_footprints
             emitters = list(scene.emitters())
             # `all`: a uniform environment is left to BSDF sampling (MIS weight 1 where a
             # ray escapes); sampling it uniformly over the sphere only adds noise.
@@ -276,7 +294,7 @@ def make_clothpath_class():
 
             def loop_body(state):
                 (sampler, ray, pi, throughput, result, eta, depth, valid_ray, prev_si,
-                 prev_bsdf_pdf, active, prev_bsdf_delta, cone_w, cone_spread, aovs) = state
+                 prev_bsdf_pdf, active, prev_bsdf_delta, cone_w, cone_spread, aovs, delta_chain) = state
 
                 si = pi.compute_surface_interaction(ray, mi.RayFlags.All)
 
@@ -292,6 +310,10 @@ def make_clothpath_class():
                 else:
                     si.duv_dx = c_dx
                     si.duv_dy = c_dy
+                if not scattered_footprints:
+                    # Only camera rays and their delta chains carry a footprint.
+                    si.duv_dx = dr.select(delta_chain, si.duv_dx, 0.0)
+                    si.duv_dy = dr.select(delta_chain, si.duv_dy, 0.0)
                 if footprint_aovs:
                     record = first & si.is_valid()
                     h_u, h_v = fp.half_widths(si.duv_dx, si.duv_dy)
@@ -321,7 +343,7 @@ def make_clothpath_class():
                 if not jit and not active_next:  # scalar variants stop here, as path.cpp does
                     return (sampler, ray, pi, throughput, result, eta, depth, valid_ray,
                             prev_si, prev_bsdf_pdf, False, prev_bsdf_delta, cone_w,
-                            cone_spread, aovs)
+                            cone_spread, aovs, delta_chain)
 
                 bsdf = si.bsdf()
 
@@ -388,6 +410,7 @@ def make_clothpath_class():
                 prev_si = mi.Interaction3f(si)
                 prev_bsdf_pdf = bsdf_sample.pdf
                 prev_bsdf_delta = mi.has_flag(bsdf_sample.sampled_type, mi.BSDFFlags.Delta)
+                delta_chain = delta_chain & prev_bsdf_delta
 
                 # The cone leaves this vertex with its width here, spread by the lobe.
                 cone_w = w_hit
@@ -405,7 +428,7 @@ def make_clothpath_class():
 
                 pi = scene.ray_intersect_preliminary(ray, coherent=False, active=active)
                 return (sampler, ray, pi, throughput, result, eta, depth, valid_ray, prev_si,
-                        prev_bsdf_pdf, active, prev_bsdf_delta, cone_w, cone_spread, aovs)
+                        prev_bsdf_pdf, active, prev_bsdf_delta, cone_w, cone_spread, aovs, delta_chain)
 
             state = (
                 sampler, ray, pi,
@@ -422,6 +445,7 @@ def make_clothpath_class():
                 mi.Float(width0),                 # cone width at the previous vertex
                 mi.Float(spread0),                # cone spread angle
                 tuple(mi.Float(0.0) for _ in AOV_NAMES),  # AOVs
+                mi.Bool(True),                    # only delta bounces so far
             )
             if jit:
                 state = dr.while_loop((state,), lambda st: loop_cond(st),
