@@ -93,8 +93,8 @@ def test_share_factors_cut_the_variance_of_footprint_samples(theta):
     """The footprint mixture's second calibration stage against the albedo ratios alone, on
     a 64-texel footprint: the same mean weight (within 5 standard errors) and at most 0.6x
     the weight's relative variance (measured on the plane's twill, 20 / 60 degrees, 2000
-    texels: 0.126 / 0.128 -> 0.038 / 0.042). The factors stay within their bounds, and the
-    fibre-level sampler keeps the albedo ratios."""
+    texels: 0.126 / 0.128 -> 0.066 / 0.066 after three passes). The factors stay within
+    their bounds, and the fibre-level sampler keeps the albedo ratios."""
     bsdf = mi.load_dict(dict(TWILL, multiscale=True))
     factors = bsdf.footprint_calibration.factors
     assert np.all((factors >= 1.0 / MAX_SHARE_FACTOR) & (factors <= MAX_SHARE_FACTOR))

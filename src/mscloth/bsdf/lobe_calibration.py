@@ -75,8 +75,10 @@ SHARE_FOOTPRINT_TEXELS = 64.0
 #: Passes of the second stage, each on fresh samples with the factors so far: the factors
 #: move towards the fixed point where every lobe's weights have the same root mean square
 #: (weight variance of the plane's twill, 20 / 60 degrees: albedo ratios 0.126 / 0.128,
-#: after one pass 0.096 / 0.095, after six 0.043 / 0.048, after twelve 0.037 / 0.039).
-SHARE_PASSES = 6
+#: after one pass 0.096 / 0.095, three 0.066 / 0.066, six 0.043 / 0.048, twelve 0.037 /
+#: 0.039). Each pass may compile a kernel the first time a configuration is seen (~0.4 s),
+#: so three.
+SHARE_PASSES = 3
 
 
 def calibrate(bsdf, proxies_at, texel_uv=None, nodes: int = 16, lanes: int = 1024, seed: int = 0):
