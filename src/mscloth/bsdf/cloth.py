@@ -222,7 +222,8 @@ def make_cloth_class():
             self.uv_scale = mi.Float(p.uv_scale)
             # Square UV units see the tile at its physical aspect unless told otherwise.
             width_mm, height_mm = self.maps.meta.get("tile_size_mm", (1.0, 1.0))
-            self.uv_scale_v = mi.Float(p.uv_scale_v or p.uv_scale * width_mm / height_mm)
+            uv_scale_v = p.uv_scale_v or p.uv_scale * width_mm / height_mm
+            self.uv_scale_v = mi.Float(uv_scale_v)
             self.roughness = mi.Float(p.roughness)
             self.thickness = mi.Float(p.thickness)
             self.sheen_roughness = mi.Float(p.sheen_roughness)
@@ -272,8 +273,7 @@ def make_cloth_class():
             if dr.is_jit_v(mi.Float):
                 texel_uv = None
                 if self.multiscale:
-                    texel_uv = (1.0 / (p.uv_scale * self.tile_w),
-                                1.0 / ((p.uv_scale_v or p.uv_scale * width_mm / height_mm) * self.tile_h))
+                    texel_uv = (1.0 / (p.uv_scale * self.tile_w), 1.0 / (uv_scale_v * self.tile_h))
                 with dr.suspend_grad():
                     self.lobe_calibration, self.footprint_calibration = calibrate(self, self._point_proxies, texel_uv)
 

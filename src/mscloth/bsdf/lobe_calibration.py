@@ -92,7 +92,7 @@ def calibrate(bsdf, proxies_at, texel_uv=None, nodes: int = 16, lanes: int = 102
         return point, None
     before = bsdf.footprint_calibration
     footprint_uv = (SHARE_FOOTPRINT_TEXELS * texel_uv[0], SHARE_FOOTPRINT_TEXELS * texel_uv[1])
-    calibration = LobeCalibration(point.albedo_ratios)  # its own table: one kernel for every pass
+    calibration = LobeCalibration(point.albedo_ratios)
     try:
         for k in range(SHARE_PASSES):
             bsdf.footprint_calibration = calibration
@@ -149,7 +149,8 @@ def measure_share_factors(bsdf, footprint_uv, nodes: int = 16, lanes: int = 4096
     si, s1, s2 = _lanes(nodes, lanes, seed)
     si.duv_dx = mi.Vector2f(footprint_uv[0], 0.0)
     si.duv_dy = mi.Vector2f(0.0, footprint_uv[1])
-    # Inputs evaluated first, so that every pass traces the same kernel (compiled once).
+    # Inputs evaluated first, so the pass's kernel holds the sampling alone. (Passes still
+    # do not always trace the same kernel; see SHARE_PASSES.)
     dr.eval(si, s1, s2)
     bs, weight = bsdf.sample(mi.BSDFContext(), si, s1, s2)
     dr.eval(bs.sampled_component, weight)
