@@ -91,9 +91,9 @@ def test_calibration_cuts_the_variance_of_footprint_samples():
 @pytest.mark.parametrize("theta", [20.0, 60.0])
 def test_share_factors_cut_the_variance_of_footprint_samples(theta):
     """The footprint mixture's second calibration stage against the albedo ratios alone, on
-    a 64-texel footprint: the same mean weight (within 5 standard errors) and at most 0.6x
-    the weight's relative variance (measured on the plane's twill, 20 / 60 degrees, 2000
-    texels: 0.126 / 0.128 -> 0.066 / 0.066 after three passes). The factors stay within
+    a 64-texel footprint: the same mean weight (within 5 standard errors) and at most half
+    the weight's relative variance (measured here: 0.122 / 0.120 -> 0.042 / 0.046 at 20 /
+    60 degrees, 0.34x / 0.38x). The factors stay within
     their bounds, and the fibre-level sampler keeps the albedo ratios."""
     bsdf = mi.load_dict(dict(TWILL, multiscale=True))
     factors = bsdf.footprint_calibration.factors
@@ -106,7 +106,7 @@ def test_share_factors_cut_the_variance_of_footprint_samples(theta):
     n = 200_000
     se = shared[0] * np.sqrt((shared[1] + albedo_only[1]) / n)
     assert abs(shared[0] - albedo_only[0]) <= 5.0 * se
-    assert shared[1] <= 0.6 * albedo_only[1], (shared, albedo_only)
+    assert shared[1] <= 0.5 * albedo_only[1], (shared, albedo_only)
 
 
 def test_calibration_tables_must_match():

@@ -34,7 +34,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..jit_arrays import flat_array, gather
+from ..jit_arrays import flat_array, gather, lane_values
 from .lobes import (DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN, SPECULAR_REFLECTION,
                     SPECULAR_TRANSMISSION)
 
@@ -65,9 +65,10 @@ def _lanes(nodes: int, lanes: int, seed: int):
     phi = rng.random(n) * 2.0 * np.pi
     sin_t = np.sqrt(1.0 - mu * mu)
     si = dr.zeros(mi.SurfaceInteraction3f, n)
-    si.wi = mi.Vector3f(sin_t * np.cos(phi), sin_t * np.sin(phi), mu)
-    si.uv = mi.Point2f(rng.random(n), rng.random(n))
-    return si, mi.Float(rng.random(n)), mi.Point2f(rng.random(n), rng.random(n))
+    # Aligned inputs: every pass on fresh samples traces (and compiles) the same kernel.
+    si.wi = mi.Vector3f(*(lane_values(c) for c in (sin_t * np.cos(phi), sin_t * np.sin(phi), mu)))
+    si.uv = mi.Point2f(lane_values(rng.random(n)), lane_values(rng.random(n)))
+    return si, lane_values(rng.random(n)), mi.Point2f(lane_values(rng.random(n)), lane_values(rng.random(n)))
 
 
 #: Footprint width (texels) at which the second pass samples the footprint mixture.
@@ -76,9 +77,9 @@ SHARE_FOOTPRINT_TEXELS = 64.0
 #: move towards the fixed point where every lobe's weights have the same root mean square
 #: (weight variance of the plane's twill, 20 / 60 degrees: albedo ratios 0.126 / 0.128,
 #: after one pass 0.096 / 0.095, three 0.066 / 0.066, six 0.043 / 0.048, twelve 0.037 /
-#: 0.039). Each pass may compile a kernel the first time a configuration is seen (~0.4 s),
-#: so three.
-SHARE_PASSES = 3
+#: 0.039). Every pass traces the same kernel (aligned inputs, :func:`_lanes`), so passes
+#: after the first cost ~25 ms each.
+SHARE_PASSES = 12
 
 
 def calibrate(bsdf, proxies_at, texel_uv=None, nodes: int = 16, lanes: int = 1024, seed: int = 0):
@@ -149,8 +150,7 @@ def measure_share_factors(bsdf, footprint_uv, nodes: int = 16, lanes: int = 4096
     si, s1, s2 = _lanes(nodes, lanes, seed)
     si.duv_dx = mi.Vector2f(footprint_uv[0], 0.0)
     si.duv_dy = mi.Vector2f(0.0, footprint_uv[1])
-    # Inputs evaluated first, so the pass's kernel holds the sampling alone. (Passes still
-    # do not always trace the same kernel; see SHARE_PASSES.)
+    # Inputs evaluated first, so the pass's kernel holds the sampling alone.
     dr.eval(si, s1, s2)
     bs, weight = bsdf.sample(mi.BSDFContext(), si, s1, s2)
     dr.eval(bs.sampled_component, weight)

@@ -22,7 +22,7 @@ import mitsuba as mi
 import numpy as np
 
 from . import spongecake
-from ..jit_arrays import flat_array, gather
+from ..jit_arrays import flat_array, gather, lane_values
 from .alias_table import AliasTable
 
 
@@ -126,8 +126,8 @@ class TabulatedSheenSampler:
         sin_i = np.sqrt(1.0 - M * M).ravel()
         sin_o = np.sqrt(1.0 - Y * Y)
         phi = 2.0 * np.pi * X
-        wi = mi.Vector3f(sin_i, np.zeros_like(sin_i), M.ravel())
-        wo = mi.Vector3f((sin_o * np.cos(phi)).ravel(), (sin_o * np.sin(phi)).ravel(), Y.ravel())
+        wi = mi.Vector3f(*(lane_values(c) for c in (sin_i, np.zeros_like(sin_i), M)))
+        wo = mi.Vector3f(*(lane_values(c) for c in (sin_o * np.cos(phi), sin_o * np.sin(phi), Y)))
         f_cos = np.asarray(eval_sheen(wi, wo, alpha_s, thickness_s), dtype=np.float64).reshape(M.shape)
         f_cos = np.where(np.isfinite(f_cos), np.maximum(f_cos, 0.0), 0.0)
         f_cos += cls.FLOOR * np.maximum(f_cos.mean(axis=(1, 2), keepdims=True), 1e-30) * Y
@@ -190,7 +190,8 @@ class FuzzCosineSampler:
         mu = (np.arange(cells) + 0.5) / cells
         sin = np.sqrt(1.0 - mu * mu)
         if dr.is_jit_v(mi.Float):
-            t = np.asarray(sheen_transmittance(mi.Vector3f(sin, np.zeros_like(sin), mu), alpha_s, thickness_s))
+            w = mi.Vector3f(*(lane_values(c) for c in (sin, np.zeros_like(sin), mu)))
+            t = np.asarray(sheen_transmittance(w, alpha_s, thickness_s))
         else:  # scalar variants: one direction at a time
             t = np.array([float(sheen_transmittance(mi.Vector3f(float(a), 0.0, float(b)), alpha_s, thickness_s))
                           for a, b in zip(sin, mu)])
