@@ -10,6 +10,11 @@ def region(speedup, spp_bf_curve):
             "curve_bruteforce": [{"spp": s, "relmse": 0.1 / s, "seconds": 0.01 * s} for s in spp_bf_curve]}
 
 
+BUDGET = {"noise": {"multiscale": {"sun": 0.01, "sky": 0.05, "both": 0.04},
+                    "bruteforce": {"sun": 0.2, "sky": 0.1, "both": 0.12}},
+          "bias": {"multiscale, footprint_slices 1": 1e-3, "multiscale, footprint_slices 4": 2e-4, "bruteforce": 1e-6}}
+
+
 def test_results_page_has_every_table_and_the_split_of_the_speed_up(tmp_path):
     out = tmp_path / "RESULTS.md"
     cost = [("cloth (mscloth, multi-scale)", 2.4, 1.7), ("principled (Mitsuba)", 0.24, 17.0)]
@@ -19,7 +24,7 @@ def test_results_page_has_every_table_and_the_split_of_the_speed_up(tmp_path):
                   1024, table_rows=[(512, 32, 0, 10.0, 1078.0, 1028.0), (512, 32, 64, 17.0, 115.0, 65.0),
                                     (256, 16, 0, 1.4, 77.0, 65.0)],
                   ccv_rows=[(2.0, [0.6, -0.2, 0.77], [-0.1, 0.7, 0.7], [(0.02, 0.009), (0.05, 0.009), (-0.01, 0.008)])],
-                  compare_rows=compare)
+                  compare_rows=compare, budget_rows=[("plane", {g: BUDGET for g in ("near", "middle", "far")})])
     text = out.read_text()
     assert "| cloth (mscloth, multi-scale) | 2.400 | 1.70 | 10.00x |" in text
     # The default under max_table_mib: rank 64 for 512^2 at 32^2 bins, the full table at 256^2, 16^2.
@@ -30,3 +35,8 @@ def test_results_page_has_every_table_and_the_split_of_the_speed_up(tmp_path):
     assert "| plane | near | 0.40x | 16 / 0.004 / 0.12 | 64 / 0.002 / 0.14 | 0.006 / 0.04 | 0.000391 |" in text
     assert "| sphere | far | 0.30x |" in text and "not reached |" in text
     assert "| 16 | [0.6, -0.2, 0.77] | [-0.1, 0.7, 0.7] | +0.020 +- 0.009 | +0.050 +- 0.009 | -0.010 +- 0.008 |" in text
+    # The error budget: noise per light and method, time ratio 0.12 / 0.04 = 3, noise-only
+    # speed-up (0.12 / 0.04) / 3 = 1, and the ratios spelled out.
+    assert ("| plane | middle | 0.01 / 0.05 / 0.04 | 0.2 / 0.1 / 0.12 | 3.00 | 1.00x | 0.40x "
+            "| 0.001 / 0.0002 / 1e-06 |") in text
+    assert "20x under the sun alone" in text and "3x brute force's" in text

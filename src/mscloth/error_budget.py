@@ -1,0 +1,130 @@
+"""Where the error of ``mscloth compare`` comes from: noise per sample, split by light, and
+the bias each method converges to.
+
+The equal-error speed-up of multi-scale over brute-force shading is bounded by two things
+``compare`` alone does not separate:
+
+* **Noise per sample.** Relative MSE of an n-spp image is bias^2 + v / n. The per-sample
+  noise v is measured from independent renders, for each method with the scene's full
+  lighting and with the sun or the sky alone. Multi-scale shading removes the noise of the
+  weave (visible under the sun); the noise of sampling the sky's directions is there for
+  both methods.
+* **Bias.** Multi-scale shading is not brute force: its footprint is the axis-aligned box
+  around the pixel (the footprint convention), larger than the pixel's sheared
+  parallelogram, and its tables bin directions. The squared bias per region is estimated
+  from two independent halves of a high-spp render against the reference.
+
+With noise alone (no bias), the equal-error speed-up would be
+(v_bruteforce / v_multiscale) / (time per sample, multi-scale / brute force): the bound the
+benchmark reports next to the measured speed-up.
+
+Estimators (per pixel, then averaged over a region's pixels and the RGB channels, with the
+relMSE normalisation (img - ref)^2 / (ref^2 + eps) of :mod:`.compare`):
+
+* per-sample noise from k renders of n spp each: n * sample variance over the k renders;
+* squared bias from halves A, B of n spp each and a reference of variance r (of its mean):
+  ((A + B) / 2 - ref)^2 - (A - B)^2 / 4 - r, unbiased because E[(A - B)^2 / 4] is the
+  variance of (A + B) / 2.
+"""
+from __future__ import annotations
+
+import gc
+
+import numpy as np
+
+from .compare import REGIONS, RELMSE_EPS
+
+#: Lighting cases: the built-in scenes' emitter keys left in.
+LIGHTS = {"both": ("sun", "sky"), "sun": ("sun",), "sky": ("sky",)}
+#: Seeds of the budget's renders (apart from compare's and the reference's).
+NOISE_SEED = 30_000
+BIAS_SEEDS = (40_000, 50_000)
+
+
+def per_sample_noise(images, spp: int, ref, eps: float = RELMSE_EPS) -> np.ndarray:
+    """Per-pixel relative variance of one sample: ``spp`` times the sample variance over the
+    independent ``images`` (k >= 2 renders of ``spp`` samples each, shape (k, H, W, C)),
+    over ref^2 + eps, mean over channels."""
+    images = np.asarray(images, dtype=np.float64)
+    if images.ndim != 4 or images.shape[0] < 2:
+        raise ValueError(f"per_sample_noise: expected (k >= 2, H, W, C) images, got shape {images.shape}")
+    var = images.var(axis=0, ddof=1) * spp
+    return (var / (np.asarray(ref, np.float64) ** 2 + eps)).mean(axis=-1)
+
+
+def squared_bias(half_a, half_b, ref, ref_var, eps: float = RELMSE_EPS) -> np.ndarray:
+    """Per-pixel unbiased estimate of the relative squared bias of the method that rendered
+    the independent halves ``half_a``, ``half_b`` (same spp) against ``ref`` whose mean has
+    variance ``ref_var``; mean over channels. Single pixels can be negative (it is an
+    estimate); region means are what it is for."""
+    a = np.asarray(half_a, np.float64)
+    b = np.asarray(half_b, np.float64)
+    ref = np.asarray(ref, np.float64)
+    estimate = (0.5 * (a + b) - ref) ** 2 - 0.25 * (a - b) ** 2 - np.asarray(ref_var, np.float64)
+    return (estimate / (ref ** 2 + eps)).mean(axis=-1)
+
+
+def _scene(name, width, height, multiscale, lights=LIGHTS["both"], **cloth):
+    from .compare import scene_dict
+    from .loading import load_dict
+    from .scenes.builtin import set_cloth_parameters
+
+    scene = scene_dict(name, width, height, multiscale)
+    for key in LIGHTS["both"]:
+        if key not in lights:
+            del scene[key]
+    if cloth:
+        set_cloth_parameters(scene, **cloth)
+    return load_dict(scene)
+
+
+def _render(scene, spp: int, seed: int) -> np.ndarray:
+    import mitsuba as mi
+
+    gc.collect()  # see render.render_progressive: no plugin freed mid-trace
+    return np.array(mi.render(scene, spp=spp, seed=seed))[..., :3].astype(np.float64)
+
+
+def error_budget(name: str, width: int, height: int, noise_renders: int = 8, noise_spp: int = 4,
+                 bias_spp: int = 256, slices=(1, 4), reference_spp: int = 1024, quiet: bool = False) -> dict:
+    """Per region of scene ``name``: per-sample noise of both methods under each lighting
+    case (``noise``: {method: {light: value}}), and the squared bias of multi-scale with each
+    ``footprint_slices`` value and of brute force (``bias``: {label: value}), all in relMSE
+    units against ``compare``'s cached reference."""
+    from .compare import _setup_mitsuba, depth_and_cloth, reference_image, region_masks
+
+    _setup_mitsuba()
+    say = (lambda *a: None) if quiet else (lambda *a: print(*a, flush=True))
+    masks = region_masks(*depth_and_cloth(name, width, height))[0]
+    ref, ref_var, _ = reference_image(name, width, height, reference_spp, quiet=True)
+
+    def per_region(pixel_map):
+        return {g: float(pixel_map[masks[g]].mean()) for g in REGIONS}
+
+    out = {g: {"noise": {"multiscale": {}, "bruteforce": {}}, "bias": {}} for g in REGIONS}
+    for method, multiscale in (("multiscale", True), ("bruteforce", False)):
+        for light, keys in LIGHTS.items():
+            scene = _scene(name, width, height, multiscale, keys)
+            images = [_render(scene, noise_spp, NOISE_SEED + k) for k in range(noise_renders)]
+            del scene
+            for g, v in per_region(per_sample_noise(images, noise_spp, ref)).items():
+                out[g]["noise"][method][light] = v
+            say(f"  {name} {method} {light}: per-sample noise "
+                + ", ".join(f"{g} {out[g]['noise'][method][light]:.3g}" for g in REGIONS))
+    cases = [(f"multiscale, footprint_slices {k}", True, {"footprint_slices": k}) for k in slices]
+    cases.append(("bruteforce", False, {}))
+    for label, multiscale, cloth in cases:
+        scene = _scene(name, width, height, multiscale, **cloth)
+        a, b = (_render(scene, bias_spp // 2, seed) for seed in BIAS_SEEDS)
+        del scene
+        for g, v in per_region(squared_bias(a, b, ref, ref_var)).items():
+            out[g]["bias"][label] = v
+        say(f"  {name} {label}: squared bias " + ", ".join(f"{g} {out[g]['bias'][label]:.3g}" for g in REGIONS))
+    gc.collect()
+    return out
+
+
+def noise_only_speedup(noise: dict, seconds_ratio: float) -> float:
+    """The equal-error speed-up without bias: brute force's per-sample noise over
+    multi-scale's, divided by multi-scale's time per sample over brute force's."""
+    return noise["bruteforce"]["both"] / max(noise["multiscale"]["both"], 1e-30) / seconds_ratio
