@@ -40,3 +40,4 @@ def test_results_page_has_every_table_and_the_split_of_the_speed_up(tmp_path):
     assert ("| plane | middle | 0.01 / 0.05 / 0.04 | 0.2 / 0.1 / 0.12 | 3.00 | 1.00x | 0.40x "
             "| 0.001 / 0.0002 / 1e-06 |") in text
     assert "20x under the sun alone" in text and "3x brute force's" in text
+    assert "is largest in plane's near region, 0.001 / 0.0002 / 1e-06 (footprint_slices 1 / footprint_slices 4 / bruteforce)" in text
