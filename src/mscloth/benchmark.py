@@ -192,16 +192,23 @@ def bench_error_budget() -> list[tuple[str, dict]]:
 
 
 def _budget_lines(budget_rows, compare_rows) -> list[str]:
-    from .error_budget import noise_only_speedup
+    from .error_budget import BIAS_SPP, NOISE_RENDERS, NOISE_SPP, noise_only_speedup
 
     speedups = dict(compare_rows)
+    # (scene, region, its budget, its compare figures, multi-scale's time per sample over brute force's)
+    cells = []
+    for name, budget in budget_rows:
+        for g in ("near", "middle", "far"):
+            r = speedups[name][g]
+            cells.append((name, g, budget[g], r, r["seconds_multiscale"] / r["seconds_bruteforce_equal_spp"]))
     lines = [
         "",
         f"## Why: noise per sample and bias (`mscloth.error_budget`, {COMPARE_RES[0]}x{COMPARE_RES[1]})",
         "",
-        "relMSE = bias^2 + noise / spp. Noise per sample: 8 renders of 4 spp, both methods, with the",
+        f"relMSE = bias^2 + noise / spp. Noise per sample: {NOISE_RENDERS} renders of {NOISE_SPP} spp, both "
+        "methods, with the",
         "sun and the sky, the sun alone, the sky alone (same relMSE normalisation, so the parts",
-        "roughly add up). Squared bias: two independent 128 spp halves against the reference",
+        f"roughly add up). Squared bias: two independent {BIAS_SPP // 2} spp halves against the reference",
         "(unbiased estimate; brute force's should be ~0). Noise-only speed-up: brute force's noise",
         "over multi-scale's, over the time-per-sample ratio at 16 spp (from the table above): the",
         "speed-up if multi-scale had no bias.",
@@ -211,48 +218,41 @@ def _budget_lines(budget_rows, compare_rows) -> list[str]:
         "| bias^2: multi-scale (slices 1 / 4) / brute force |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    for name, budget in budget_rows:
-        for g in ("near", "middle", "far"):
-            b, r = budget[g], speedups[name][g]
-            ratio = r["seconds_multiscale"] / r["seconds_bruteforce_equal_spp"]
-            noise = " | ".join(" / ".join(f"{b['noise'][m][light]:.3g}" for light in ("sun", "sky", "both"))
-                               for m in ("multiscale", "bruteforce"))
-            bias = " / ".join(f"{v:.2g}" for v in b["bias"].values())
-            lines.append(f"| {name} | {g} | {noise} | {ratio:.2f} | {noise_only_speedup(b['noise'], ratio):.2f}x "
-                         f"| {r['speedup']:.2f}x | {bias} |")
+    for name, g, b, r, ratio in cells:
+        noise = " | ".join(" / ".join(f"{b['noise'][m][light]:.3g}" for light in ("sun", "sky", "both"))
+                           for m in ("multiscale", "bruteforce"))
+        bias = " / ".join(f"{v:.2g}" for v in b["bias"].values())
+        lines.append(f"| {name} | {g} | {noise} | {ratio:.2f} | {noise_only_speedup(b['noise'], ratio):.2f}x "
+                     f"| {r['speedup']:.2f}x | {bias} |")
 
     def span(values):
         lo, hi = f"{min(values):.2g}", f"{max(values):.2g}"
         return lo if lo == hi else f"{lo}-{hi}"
 
-    cells = [(name, g, budget[g], speedups[name][g]) for name, budget in budget_rows for g in ("near", "middle", "far")]
-
     def noise_ratio(light):
         return span([b["noise"]["bruteforce"][light] / max(b["noise"]["multiscale"][light], 1e-30)
-                     for _, _, b, _ in cells])
+                     for _, _, b, _, _ in cells])
 
-    time_ratio = span([r["seconds_multiscale"] / r["seconds_bruteforce_equal_spp"] for *_, r in cells])
-    # Per scene, the region where multi-scale's default (first) case has the most bias.
-    worst = {}
-    for name, g, b, _ in cells:
-        first = next(iter(b["bias"].values()))
-        if name not in worst or first > next(iter(worst[name][1].values())):
-            worst[name] = (g, b["bias"])
+    def default_bias(cell):  # multi-scale's default case comes first
+        return next(iter(cell[2]["bias"].values()))
+
+    # Per scene, the region where multi-scale's default case has the most bias.
+    worst = {name: max((c for c in cells if c[0] == name), key=default_bias) for name, _ in budget_rows}
+    labels = [label.replace("multiscale, ", "") for label in cells[0][2]["bias"]]
     lines += [
         "",
         f"Reading it (this run): brute force's noise per sample over multi-scale's is {noise_ratio('sun')}x "
         f"under the sun alone (the weave's noise, which multi-scale shading removes), {noise_ratio('sky')}x "
         f"under the sky alone (what multi-scale keeps there is the noise of sampling the sky's directions, "
         f"which brute force has as well) and {noise_ratio('both')}x with both; compare the columns to see "
-        f"which light dominates. Multi-scale's time per sample is {time_ratio}x brute force's. "
+        f"which light dominates. Multi-scale's time per sample is {span([c[4] for c in cells])}x brute force's. "
         "The speed-up cannot exceed the noise ratio over the time ratio, whatever the bias. "
         "Multi-scale's bias (mostly the footprint box being larger than the sheared pixel: more "
         "slices lower it) is largest in "
-        + "; ".join(f"{name}'s {g} region, {' / '.join(f'{v:.2g}' for v in bias.values())}"
-                    for name, (g, bias) in worst.items())
-        + " (" + " / ".join(label.replace("multiscale, ", "") for label in next(iter(worst.values()))[1])
-        + "). 30x needs scenes whose noise is the weave's rather than the lighting's, and a cost per "
-        "sample near brute force's.",
+        + "; ".join(f"{name}'s {g} region, {' / '.join(f'{v:.2g}' for v in b['bias'].values())}"
+                    for name, g, b, _, _ in worst.values())
+        + " (" + " / ".join(labels) + "). 30x needs scenes whose noise is the weave's rather than the "
+        "lighting's, and a cost per sample near brute force's.",
     ]
     return lines
 
