@@ -385,17 +385,20 @@ def test_sliced_footprint_matches_brute_force_over_its_boxes(slices):
         assert abs(ms_mean - bf_mean) <= tolerance, (wi, wo, ms_mean, bf_mean, tolerance)
 
 
-def test_packed_visibility_reads_the_table():
+@pytest.mark.parametrize("dv", [4, 8, 12])
+def test_packed_visibility_reads_the_table(dv):
     """Visibility is stored as one bit per texel and direction bin (the table holds 0 or
     255): a lookup is the bilinear mix over its four bins of table / 255, front and back,
-    for bins in either 32-bit word of a texel's 64."""
+    for bins in any 32-bit word of a texel's block: one packet of four words up to 8x8
+    bins (4: one word per side, 8: two), a word per bin above (12: five per side)."""
     from mscloth.bsdf.footprint_data import FootprintData
     from mscloth.bsdf.sat_queries import hemisphere_bins
     from mscloth.maps.builtin import resolve_pattern
     from mscloth.precompute.tables import load_or_build
 
-    tables = load_or_build(resolve_pattern("plain"), BASE["roughness"], dr=16, dv=8, clusters=8)
+    tables = load_or_build(resolve_pattern("plain"), BASE["roughness"], dr=16, dv=dv, clusters=8)
     fd = FootprintData(tables, with_sats=False, with_parallax=False)
+    assert fd.packed_visibility == (dv <= 8)
     rng = np.random.default_rng(21)
     n = 5000
     H, W = tables.visibility.shape[:2]
@@ -406,7 +409,7 @@ def test_packed_visibility_reads_the_table():
     back = rng.random(n) < 0.5
     wv = mi.Vector3f(*w.T)
     got = np.array(fd.visibility_at(mi.UInt32(ix), mi.UInt32(iy), wv, mi.Bool(back)))
-    bins, weights = hemisphere_bins(wv, 8)
+    bins, weights = hemisphere_bins(wv, dv)
     table = np.where(back[:, None], tables.visibility_back[iy, ix], tables.visibility[iy, ix]) / 255.0
     expected = sum(np.array(wt) * table[np.arange(n), np.array(b)] for b, wt in zip(bins, weights))
     assert np.ptp(expected) > 0.5  # shadowed and lit texels both occur

@@ -434,18 +434,19 @@ def make_cloth_class():
             transmission."""
             return mi.Vector3f(wo.x, wo.y, dr.abs(wo.z)), flip == (wo.z > 0.0)
 
-        def _visibility_o(self, pt, wo):
-            """V(p, o) of the texel for the outgoing direction (mirrored frame)."""
+        def _visibility_o(self, pt, wo, texel_vis):
+            """V(p, o) of the texel for the outgoing direction (mirrored frame), from its
+            visibility bits ``texel_vis``."""
             wo_up, back = self._outgoing_side(pt["flip"], wo)
-            return self.footprint_data.visibility_at(pt["ix"], pt["iy"], wo_up, back)
+            return self.footprint_data.visibility_of(texel_vis, wo_up, back)
 
         def _visibility(self, pt, wo):
             """V(p, i, o) of the texel: shadowing x masking by the cloth's height field.
             The viewer's side uses the front table, mirrored when the viewer is below."""
             if self.footprint_data is None:
                 return mi.Float(1.0)
-            v_i = self.footprint_data.visibility_at(pt["ix"], pt["iy"], pt["wi"], pt["flip"])
-            return v_i * self._visibility_o(pt, wo)
+            v_i = self.footprint_data.visibility_of(pt["vis"], pt["wi"], pt["flip"])
+            return v_i * self._visibility_o(pt, wo, pt["vis"])
 
         def _cluster_visibilities_o(self, fr, wo):
             """Every cluster's mean V for the outgoing direction (mirrored frame)."""
@@ -555,7 +556,8 @@ def make_cloth_class():
                 st["cvis_i"] = cvis_i = fd.cluster_visibilities(fr["wi"], fr["flip"])
                 for t_ in texels:
                     t_["cluster"] = fd.cluster_of(t_["ix"], t_["iy"])
-                    t_["v_i"] = fd.visibility_at(t_["ix"], t_["iy"], fr["wi"], fr["flip"])
+                    t_["vis"] = fd.texel_visibility(t_["ix"], t_["iy"])
+                    t_["v_i"] = fd.visibility_of(t_["vis"], fr["wi"], fr["flip"])
                     t_["cvis_i"] = _pick(cvis_i, t_["cluster"])
                 # The footprint's share of each cluster's yarn (diffuse lobes, specular base).
                 st["fractions"] = [mean(fd.CLUSTERS + c) for c in range(fd.clusters)]
@@ -609,7 +611,7 @@ def make_cloth_class():
             if self.use_visibility:
                 # Per residual texel: V(p, i, o) and its cluster's mean v_c(i) v_c(o).
                 cvis_o = self._cluster_visibilities_o(fr, wo)
-                v_p = [t_["v_i"] * self._visibility_o(t_, wo) for t_ in texels]
+                v_p = [t_["v_i"] * self._visibility_o(t_, wo, t_["vis"]) for t_ in texels]
                 vbar_p = [t_["cvis_i"] * _pick(cvis_o, t_["cluster"]) for t_ in texels]
 
             value = mi.Color3f(0.0)
@@ -809,6 +811,9 @@ def make_cloth_class():
                 x = x + (2.0 * xi.x - 1.0) * fp["sub_x"]
                 y = y + (2.0 * xi.y - 1.0) * fp["sub_y"]
             pt = self._texel(fr, x, y)
+            if self.use_visibility and self.footprint_data is not None:
+                # The texel's visibility bits, read once for every direction below.
+                pt["vis"] = self.footprint_data.texel_visibility(pt["ix"], pt["iy"])
             probs = self._lobe_probabilities(pt, enabled)
 
             def eval_pdf(wo):

@@ -7,7 +7,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..jit_arrays import flat_array, flat_word_array, gather, gather_block, gather_word
+from ..jit_arrays import flat_array, flat_word_array, gather, gather_block, gather_word, gather_words
 from .sat_queries import ResidualSATs, hemisphere_bins
 
 
@@ -20,19 +20,24 @@ class FootprintData:
         self.dv = int(tables.dv)
         self.clusters = int(tables.cluster_vis.shape[0])
         self.n_dirs = self.dv * self.dv
-        # Front and back visibility back to back: the back half is for the mirrored side.
-        # Each entry says whether the ray along a bin's centre escapes (0 or 255), so a
-        # texel's directions pack into bits: 32x less memory than floats (1 MiB for a 256^2
-        # tile at 8x8 bins), which keeps the per-texel lookups of every evaluation in cache.
-        vis = np.stack([tables.visibility, tables.visibility_back])
+        # Each visibility entry says whether the ray along a bin's centre escapes (0 or 255),
+        # so a texel's directions pack into bits: 32x less memory than floats (1 MiB for a
+        # 256^2 tile at 8x8 bins), which keeps the per-texel lookups in cache. A texel's
+        # block holds its front words, then its back (mirrored side) words: at up to 8x8
+        # bins one packet of four words, read once per texel and shared by every direction
+        # that texel is evaluated for (wi, each wo) instead of one read per bin and direction.
+        vis = np.stack([tables.visibility, tables.visibility_back], axis=2).reshape(-1, 2, self.n_dirs)
         if not np.all((vis == 0) | (vis == 255)):
             raise ValueError("FootprintData: visibility tables must hold 0 or 255 (escape or hit)")
-        bits = np.packbits(vis.reshape(-1, self.n_dirs) == 255, axis=-1, bitorder="little")
-        self.words_per_texel = (self.n_dirs + 31) // 32
-        padded = np.zeros((bits.shape[0], 4 * self.words_per_texel), dtype=np.uint8)
-        padded[:, :bits.shape[1]] = bits
-        self.visibility = flat_word_array(padded.view("<u4"))
-        self.side_stride = self.H * self.W * self.words_per_texel
+        self.words_per_side = (self.n_dirs + 31) // 32
+        self.packed_visibility = 2 * self.words_per_side <= 4
+        self.words_per_texel = 4 if self.packed_visibility else 2 * self.words_per_side
+        words = np.zeros((vis.shape[0], self.words_per_texel * 4), dtype=np.uint8)
+        for side in range(2):
+            bits = np.packbits(vis[:, side] == 255, axis=-1, bitorder="little")
+            start = 4 * side * self.words_per_side
+            words[:, start:start + bits.shape[1]] = bits
+        self.visibility = flat_word_array(words.view("<u4"))
         # (side, direction, cluster): the clusters of one direction bin are contiguous.
         cvis = np.stack([tables.cluster_vis, tables.cluster_vis_back]).astype(np.float32)
         self.cluster_vis = flat_array(np.moveaxis(cvis, 1, 2))
@@ -90,16 +95,35 @@ class FootprintData:
     CLUSTERS = 10
 
     # ------------------------------------------------------------------ visibility
-    def visibility_at(self, ix, iy, w, back):
-        """V(p, w) of texel (ix, iy) for an upper-hemisphere direction ``w`` of the front
-        (back=False) or mirrored back (back=True) height field, bilinear over direction bins."""
+    def texel_visibility(self, ix, iy):
+        """The visibility bits of texel (ix, iy), for :meth:`visibility_of`: its four words
+        (up to 8x8 bins), or where its block starts."""
+        base = (iy * self.W + ix) * self.words_per_texel
+        if self.packed_visibility:
+            return gather_words(self.visibility, base, 4)
+        return base
+
+    def visibility_of(self, texel, w, back):
+        """V(p, w) of the texel whose :meth:`texel_visibility` is ``texel``, for an
+        upper-hemisphere direction ``w`` of the front (back=False) or mirrored back
+        (back=True) height field, bilinear over direction bins."""
         bins, weights = hemisphere_bins(w, self.dv)
-        base = dr.select(back, mi.UInt32(self.side_stride), mi.UInt32(0)) + (iy * self.W + ix) * self.words_per_texel
+        side = dr.select(back, mi.UInt32(32 * self.words_per_side), mi.UInt32(0))
         v = mi.Float(0.0)
         for b, wt in zip(bins, weights):
-            word = gather_word(self.visibility, base + (b >> 5))
-            v += dr.select(((word >> (b & 31)) & 1) != 0, wt, 0.0)
+            bit = side + b  # in the texel's block
+            if self.packed_visibility:
+                word = texel[0]
+                for j in range(1, 4):
+                    word = dr.select((bit >> 5) == j, texel[j], word)
+            else:
+                word = gather_word(self.visibility, texel + (bit >> 5))
+            v += dr.select(((word >> (bit & 31)) & 1) != 0, wt, 0.0)
         return v
+
+    def visibility_at(self, ix, iy, w, back):
+        """V(p, w) of texel (ix, iy) (see :meth:`visibility_of`)."""
+        return self.visibility_of(self.texel_visibility(ix, iy), w, back)
 
     def cluster_visibilities(self, w, back):
         """Mean V of every visibility cluster for direction ``w`` (same conventions as

@@ -380,8 +380,11 @@ def make_clothpath_class():
                     centre = fp.centred_uv(si.uv, si.duv_dx, si.duv_dy, ox, oy)
                     si_centred.uv = dr.select(centre_ok, centre, si.uv)
                 if jit:
+                    # Lanes whose path ends here skip the BSDF (as path.cpp masks it with
+                    # active_next): a footprint shading is costly, and its result unused.
+                    shaded = dr.select(active_next, bsdf, dr.zeros(mi.BSDFPtr))
                     bsdf_vals, bsdf_pdfs, bsdf_sample, bsdf_weight = dr.dispatch(
-                        bsdf, eval_pdf_sample_n, bsdf_ctx, si, si_centred, wos, sample_1, sample_2)
+                        shaded, eval_pdf_sample_n, bsdf_ctx, si, si_centred, wos, sample_1, sample_2)
                 else:
                     bsdf_vals, bsdf_pdfs, bsdf_sample, bsdf_weight = eval_pdf_sample_n(
                         bsdf, bsdf_ctx, si, si_centred, wos, sample_1, sample_2)
