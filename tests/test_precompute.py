@@ -833,3 +833,50 @@ def test_unwritable_cache_still_returns_tables(maps_sq, tmp_path):
     with pytest.warns(RuntimeWarning, match="cannot write"):
         t = load_or_build(maps_sq, 0.3, cache_dir=blocker / "sub", **CACHE_KW)
     assert t.d_sat.shape == (16, 33, 33)
+
+
+# ====================================================== Dr.Jit queries of the residual SATs
+def test_jit_sat_queries_match_brute_force_on_wrapping_rectangles():
+    """The BSDF's O(1) queries (bsdf/sat_queries.py) against float64 summation over the same
+    texels: exact fractional corners (bilinear reads) and corners rounded to whole texels
+    (packets of four channels), for rectangles inside one tile and rectangles wrapping up to
+    3.5 tiles, anywhere (negative coordinates too), mixed in one packet of lanes, so the
+    reads of the last row and column that only wrapping corners need are skipped in none
+    of the lanes that need them."""
+    from mscloth.bsdf.sat_queries import ResidualSATs
+
+    rng = np.random.default_rng(17)
+    C, H, W = 4, 24, 40
+    img = rng.random((C, H, W)) ** 3 * 5.0
+    sats = ResidualSATs(*build_sat(img))
+    n = 400
+    x0 = rng.uniform(-3.0 * W, 3.0 * W, n)
+    y0 = rng.uniform(-3.0 * H, 3.0 * H, n)
+    # Every other lane stays inside one tile; the others span up to 3.5 tiles.
+    inside = np.arange(n) % 2 == 0
+    x0 = np.where(inside, np.floor(x0 / W) * W + rng.uniform(0.0, 0.4 * W, n), x0)
+    y0 = np.where(inside, np.floor(y0 / H) * H + rng.uniform(0.0, 0.4 * H, n), y0)
+    wx = np.where(inside, rng.uniform(0.5, 0.5 * W, n), rng.uniform(0.5, 3.5 * W, n))
+    wy = np.where(inside, rng.uniform(0.5, 0.5 * H, n), rng.uniform(0.5, 3.5 * H, n))
+    x1, y1 = x0 + wx, y0 + wy
+    ref = np.array([brute_rect(img, *r) for r in zip(x0, y0, x1, y1)])  # (n, C)
+    # float32 SATs of mean-free residuals: error grows with the covered tiles' count.
+    tol = 1e-4 * (1.0 + wx * wy / (W * H))[:, None] * np.abs(img).max()
+
+    q = sats.query(*(mi.Float(v.astype(np.float32)) for v in (x0, y0, x1, y1)))
+    exact = np.stack([np.array(sats.integral(q, c)) for c in range(C)], axis=1)
+    # The float32 corners themselves move by up to ~1e-6 relative: allow for that area.
+    slack = (np.abs(x0) + np.abs(x1) + np.abs(y0) + np.abs(y1))[:, None] * 2e-7 * (wx + wy)[:, None] * img.max()
+    assert np.all(np.abs(exact - ref) <= tol + slack), np.abs(exact - ref).max()
+
+    # Rounded corners with xi = 0 are floor(): compare with the floored rectangle.
+    fx0, fy0, fx1, fy1 = (np.floor(v) for v in (x0, y0, x1, y1))
+    ref_floor = np.array([brute_rect(img, *r) for r in zip(fx0, fy0, fx1, fy1)])
+    zero = mi.Float(np.zeros(n, np.float32))
+    qr = sats.query_rounded(*(mi.Float(v.astype(np.float32)) for v in (x0, y0, x1, y1)), zero, zero)
+    packets = np.stack([np.array(v) for v in sats.integrals(qr, 0, C)], axis=1)
+    singles = np.stack([np.array(sats.integral(qr, c)) for c in range(C)], axis=1)
+    assert np.all(np.abs(packets - ref_floor) <= tol), np.abs(packets - ref_floor).max()
+    np.testing.assert_allclose(packets, singles, rtol=1e-6, atol=1e-4)
+    # Both kinds of lanes occurred, and the wrapping ones needed the edge reads.
+    assert inside.any() and (~inside).any() and (wx > W).any()
