@@ -246,3 +246,18 @@ def test_back_side_mirrors_front_side():
     back = np3(bsdf.eval(ctx, make_si(vec(wi * [1, 1, -1]), uv, n), vec(wo * [1, 1, -1])))
     np.testing.assert_allclose(front, back, rtol=2e-2, atol=1e-4)
     assert np.count_nonzero(front) > 0.5 * front.size
+
+
+def test_zero_parameters_stay_scalars_after_shading_lanes():
+    """A parameter set to 0 stays one value after the BSDF shaded lanes of one width, so
+    lanes of another width shade too (Dr.Jit 1.5.0 folds `literal 0 * x` by resizing a
+    literal held once in place: sheen_thickness 0 became 65536 wide in the calibration)."""
+    bsdf = mi.load_dict({"type": "cloth", "sheen_thickness": 0.0, "visibility": False})
+    for n in (1000, 777):
+        wi = np.repeat([[0.3, 0.2, 0.93]], n, axis=0)
+        si = make_si(vec(wi), mi.Point2f(0.3, 0.6), n)
+        _, weight = bsdf.sample(mi.BSDFContext(), si, mi.Float(np.linspace(0, 1, n, endpoint=False)),
+                                pt2(np.full((n, 2), 0.4)))
+        assert np3(weight).shape == (n, 3) and np.all(np.isfinite(np3(weight)))
+    for name in ("sheen_thickness", "sheen_roughness", "roughness", "thickness", "uv_scale"):
+        assert dr.width(getattr(bsdf, name)) == 1, name

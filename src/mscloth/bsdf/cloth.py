@@ -10,6 +10,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..jit_arrays import flat_array, gather_block
 from ..maps.builtin import resolve_pattern
 from ..scattering import sggx, sheen, spongecake
 from .footprint_data import FootprintData
@@ -219,15 +220,16 @@ def make_cloth_class():
             mi.BSDF.__init__(self, props)
             self.pattern = p.pattern
             self.maps = maps
-            self.uv_scale = mi.Float(p.uv_scale)
+            self._pinned = []
+            self.uv_scale = self._parameter(p.uv_scale)
             # Square UV units see the tile at its physical aspect unless told otherwise.
             width_mm, height_mm = self.maps.meta.get("tile_size_mm", (1.0, 1.0))
             uv_scale_v = p.uv_scale_v or p.uv_scale * width_mm / height_mm
-            self.uv_scale_v = mi.Float(uv_scale_v)
-            self.roughness = mi.Float(p.roughness)
-            self.thickness = mi.Float(p.thickness)
-            self.sheen_roughness = mi.Float(p.sheen_roughness)
-            self.sheen_thickness = mi.Float(p.sheen_thickness)
+            self.uv_scale_v = self._parameter(uv_scale_v)
+            self.roughness = self._parameter(p.roughness)
+            self.thickness = self._parameter(p.thickness)
+            self.sheen_roughness = self._parameter(p.sheen_roughness)
+            self.sheen_thickness = self._parameter(p.sheen_thickness)
             self.textures = p.textures
             self._upload_maps(self.maps)
             self.multiscale = p.multiscale
@@ -277,15 +279,27 @@ def make_cloth_class():
                 with dr.suspend_grad():
                     self.lobe_calibration, self.footprint_calibration = calibrate(self, self._point_proxies, texel_uv)
 
+        def _parameter(self, value):
+            """A float parameter as a Float, with a second reference kept: Dr.Jit 1.5.0 folds
+            ``literal 0 * x`` by resizing the literal in place when only one reference holds
+            it, so a parameter set to 0 (sheen_thickness) became as wide as some lanes it was
+            multiplied with, and later kernels of another width failed."""
+            value = mi.Float(value)
+            if dr.is_jit_v(mi.Float):
+                self._pinned.append(mi.Float(value))
+            return value
+
         def _upload_maps(self, maps):
             fibre = np.concatenate([maps.tangent, maps.gap[..., None]], axis=-1).astype(np.float32)
             color = np.concatenate([maps.albedo, maps.height[..., None]], axis=-1).astype(np.float32)
-            kwargs = dict(filter_mode=dr.FilterMode.Nearest, wrap_mode=dr.WrapMode.Repeat)
-            # Nearest lookups: the fibre-level BSDF sees exactly one texel.
-            self.fibre_texture = mi.Texture2f(mi.TensorXf(fibre), **kwargs)
-            self.color_texture = mi.Texture2f(mi.TensorXf(color), **kwargs)
+            # Texel (ix, iy)'s four channels at 4 (iy W + ix): one packet read per texel, at
+            # the texel index that the visibility and cluster tables use too (a Texture2f
+            # computed its own, and read one channel at a time).
+            self.fibre_table = flat_array(fibre)
+            self.color_table = flat_array(color)
             self.tile_h, self.tile_w = maps.resolution
-            # Uniformly coloured yarns (the common case) need no albedo SAT reads.
+            # Uniformly coloured yarns (the common case) need no albedo reads, per texel or
+            # from the SATs (a gap texel's colour multiplies nothing: its yarn lobes are 0).
             yarn_colours = maps.albedo[maps.gap > 0]
             self.uniform_yarn_albedo = None
             if len(yarn_colours) and np.all(yarn_colours == yarn_colours[0]):
@@ -324,11 +338,15 @@ def make_cloth_class():
         def _texel(self, fr, x, y):
             """The point (fibre-level) state at texel coordinates (x, y) (periodic)."""
             pos = mi.Point2f(x / self.tile_w, y / self.tile_h)
-            fibre = self.fibre_texture.eval(pos, fr["active"])
-            color = self.color_texture.eval(pos, fr["active"])
-            tangent = mi.Vector3f(fibre[0], fibre[1], fr["sign"] * fibre[2])
-            k = _with_yarn_albedo(fr["k"], mi.Color3f(color[0], color[1], color[2]))
             ix, iy = self._texel_index(pos)
+            start = (iy * self.tile_w + ix) * 4
+            fibre = gather_block(self.fibre_table, start, 4, fr["active"])
+            if self.uniform_yarn_albedo is not None:
+                color = mi.Color3f(*self.uniform_yarn_albedo)
+            else:
+                color = mi.Color3f(*gather_block(self.color_table, start, 4, fr["active"])[:3])
+            tangent = mi.Vector3f(fibre[0], fibre[1], fr["sign"] * fibre[2])
+            k = _with_yarn_albedo(fr["k"], color)
             return dict(fr, tangent=tangent, yarn=fibre[3], k=k, ix=ix, iy=iy)
 
         def _footprint(self, si, fr):

@@ -85,8 +85,8 @@ class ResidualSATs:
         W, H = float(self.W), float(self.H)
         c = _Corner()
         c.home_x, c.home_y = home_x, home_y
-        c.qx = mi.Float(0.0) if home_x else dr.floor(x / W)
-        c.qy = mi.Float(0.0) if home_y else dr.floor(y / H)
+        c.qx = 0.0 if home_x else dr.floor(x / W)
+        c.qy = 0.0 if home_y else dr.floor(y / H)
         rx = dr.clip(x - c.qx * W, 0.0, W)
         ry = dr.clip(y - c.qy * H, 0.0, H)
         if on_grid:  # whole coordinates: the grid point itself, W and H included
