@@ -34,7 +34,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..jit_arrays import flat_array, gather, lane_values
+from ..jit_arrays import flat_array, gather_block, lane_values
 from .lobes import (DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN, SPECULAR_REFLECTION,
                     SPECULAR_TRANSMISSION)
 
@@ -186,8 +186,12 @@ class LobeCalibration:
                              f"expected the ratios' {self.albedo_ratios.shape}")
         self.ratios = self.albedo_ratios * self.factors
         self.rows, self.nodes = self.ratios.shape
-        # Node-major, the rows of one node side by side: one cache line per lookup.
-        self.table = flat_array(self.ratios.T)
+        # Node-major, the rows of one node side by side (padded to a multiple of four): a
+        # node's ratios are packet reads, two per lookup node instead of one read per row.
+        self.stride = -(-self.rows // 4) * 4
+        padded = np.zeros((self.nodes, self.stride))
+        padded[:, :self.rows] = self.ratios.T
+        self.table = flat_array(padded)
 
     def scale(self, proxies, cos_theta):
         """The proxies (a list of six per-lane values) times their ratios at ``cos_theta``."""
@@ -195,8 +199,9 @@ class LobeCalibration:
         j0 = mi.UInt32(dr.floor(x))
         j1 = dr.minimum(j0 + 1, self.nodes - 1)
         f = x - mi.Float(j0)
+        r0 = gather_block(self.table, j0 * self.stride, self.stride)
+        r1 = gather_block(self.table, j1 * self.stride, self.stride)
         out = list(proxies)
         for row, (slot, _) in enumerate(CALIBRATED):
-            r = dr.lerp(gather(self.table, j0 * self.rows + row), gather(self.table, j1 * self.rows + row), f)
-            out[slot] = proxies[slot] * r
+            out[slot] = proxies[slot] * dr.lerp(r0[row], r1[row], f)
         return out
