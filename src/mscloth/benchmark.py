@@ -26,8 +26,16 @@ def _best_of(fn, repeats: int) -> float:
 BENCH_RANK = 64
 
 
-def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple[str, float, float]]:
-    """Seconds per render of the demo scene with each BSDF on both shapes; (name, s, Msamples/s)."""
+def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple[str, float, float, float]]:
+    """Seconds per render of the demo scene with each BSDF on both shapes:
+    (name, fastest seconds, Msamples/s, cost vs principled).
+
+    The contenders are timed in interleaved rounds (each once per round), and a cost is the
+    median over rounds of its time over principled's in the same round: on a shared machine
+    whose speed drifts over minutes, consecutive repeats of one contender then another
+    moved the ratios by 10-20% between runs."""
+    import statistics
+
     import drjit as dr
     import mitsuba as mi
 
@@ -48,7 +56,7 @@ def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple[str, 
         "roughconductor (Mitsuba)": {"type": "roughconductor", "alpha": 0.3},
         "diffuse (Mitsuba)": {"type": "diffuse"},
     }
-    rows = []
+    scenes = {}
     for name, bsdf in contenders.items():
         scene_dict = demo_scene(resolution=resolution)  # fresh dict: transforms do not deepcopy
         bsdf = dict(bsdf)
@@ -58,16 +66,27 @@ def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple[str, 
                 scene_dict[shape]["bsdf"] = bsdf
             else:
                 scene_dict[shape]["bsdf"].update(bsdf)
-        scene = load_dict(scene_dict)
+        scenes[name] = load_dict(scene_dict)
 
-        def render():
-            dr.eval(mi.render(scene, spp=spp))
-            dr.sync_thread()  # the LLVM backend runs kernels asynchronously: wait for this one
+    def render(scene):
+        start = time.perf_counter()
+        dr.eval(mi.render(scene, spp=spp))
+        dr.sync_thread()  # the LLVM backend runs kernels asynchronously: wait for this one
+        return time.perf_counter() - start
 
-        render()  # compile once
-        seconds = _best_of(render, repeats)
-        rows.append((name, seconds, resolution * resolution * spp / seconds / 1e6))
-        print(f"  {name:32s} {seconds:7.3f} s  {rows[-1][2]:7.2f} Msamples/s", flush=True)
+    for scene in scenes.values():
+        render(scene)  # compile once
+    times = {name: [] for name in scenes}
+    for round_ in range(repeats):
+        for name, scene in scenes.items():
+            times[name].append(render(scene))
+        print(f"  round {round_ + 1}/{repeats}", flush=True)
+    reference = times[next(n for n in scenes if n.startswith("principled"))]
+    rows = []
+    for name, seconds in times.items():
+        cost = statistics.median(t / r for t, r in zip(seconds, reference))
+        rows.append((name, min(seconds), resolution * resolution * spp / min(seconds) / 1e6, cost))
+        print(f"  {name:45s} {min(seconds):7.3f} s  {rows[-1][2]:7.2f} Msamples/s  {cost:5.2f}x", flush=True)
     return rows
 
 
@@ -259,7 +278,6 @@ def _budget_lines(budget_rows, compare_rows) -> list[str]:
 
 def write_results(path: Path, command: str, variant: str, cost_rows, cost_setup, maps_seconds, maps_res,
                   table_rows=(), ccv_rows=(), compare_rows=(), budget_rows=()) -> None:
-    principled = next(s for n, s, _ in cost_rows if n.startswith("principled"))
     lines = [
         "# Benchmark results",
         "",
@@ -267,13 +285,16 @@ def write_results(path: Path, command: str, variant: str, cost_rows, cost_setup,
         f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
         f"variant `{variant}`, {time.strftime('%Y-%m-%d')}.",
         "",
-        f"## Per-sample cost (demo scene, {cost_setup}, best of repeats after compilation)",
+        f"## Per-sample cost (demo scene, {cost_setup}, interleaved rounds after compilation)",
+        "",
+        "Seconds: the fastest round. Cost: the median over rounds of the render's time over",
+        "principled's in the same round (the machine's speed drifts; ratios of one round hold).",
         "",
         "| BSDF on both shapes | seconds | M samples/s | cost vs principled |",
         "|---|---|---|---|",
     ]
-    for name, seconds, rate in cost_rows:
-        lines.append(f"| {name} | {seconds:.3f} | {rate:.2f} | {seconds / principled:.2f}x |")
+    for name, seconds, rate, cost in cost_rows:
+        lines.append(f"| {name} | {seconds:.3f} | {rate:.2f} | {cost:.2f}x |")
     lines += [
         "",
         "All renders use the `clothpath` integrator (it hands BSDFs their pixel footprints:",
@@ -376,7 +397,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default="bench/RESULTS.md")
     parser.add_argument("--res", type=int, default=256)
     parser.add_argument("--spp", type=int, default=64)
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args(argv)
 
     import mitsuba as mi
