@@ -52,27 +52,27 @@ def gather_word(source, index, active=True):
     return int(source[int(index)]) if active else 0
 
 
-def gather_words(source, start, n: int, active=True):
-    """[source[start + j] for j < n] of a :func:`flat_word_array` per lane, ``start`` a
-    multiple of 4 when n is: packets of four words, like :func:`gather_block`."""
+def _packets(vector4, one, source, start, n: int, active):
+    """[source[start + j] for j < n] per lane: ``vector4`` packets of four neighbours (one
+    vector load each instead of four gathers) in JIT variants when n is a multiple of 4
+    (``start`` one too), else ``one`` read per element."""
     if dr.is_jit_v(mi.Float) and n % 4 == 0:
         out = []
         first = start // 4
         for j in range(n // 4):
-            v = dr.gather(mi.Vector4u, source, first + j, active)
+            v = dr.gather(vector4, source, first + j, active)
             out += [v.x, v.y, v.z, v.w]
         return out
-    return [gather_word(source, start + j, active) for j in range(n)]
+    return [one(source, start + j, active) for j in range(n)]
+
+
+def gather_words(source, start, n: int, active=True):
+    """[source[start + j] for j < n] of a :func:`flat_word_array` per lane, in packets of
+    four words like :func:`gather_block`."""
+    return _packets(mi.Vector4u, gather_word, source, start, n, active)
 
 
 def gather_block(source, start, n: int, active=True):
     """[source[start + j] for j < n] per lane, ``start`` a multiple of 4 when n is: read as
     packets of four neighbours (one vector load each instead of four gathers)."""
-    if dr.is_jit_v(mi.Float) and n % 4 == 0:
-        out = []
-        first = start // 4
-        for j in range(n // 4):
-            v = dr.gather(mi.Vector4f, source, first + j, active)
-            out += [v.x, v.y, v.z, v.w]
-        return out
-    return [gather(source, start + j, active) for j in range(n)]
+    return _packets(mi.Vector4f, gather, source, start, n, active)
