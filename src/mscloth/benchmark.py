@@ -30,10 +30,14 @@ def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple[str, 
     """Seconds per render of the demo scene with each BSDF on both shapes:
     (name, fastest seconds, Msamples/s, cost vs principled).
 
-    The contenders are timed in interleaved rounds (each once per round), and a cost is the
-    median over rounds of its time over principled's in the same round: on a shared machine
-    whose speed drifts over minutes, consecutive repeats of one contender then another
-    moved the ratios by 10-20% between runs."""
+    The contenders are timed in interleaved rounds, and a cost is the median over rounds
+    of its time over principled's in the same round: on a shared machine whose speed
+    drifts over minutes, consecutive repeats of one contender then another moved the
+    ratios by 10-20% between runs. With every contender's scene loaded at once, each
+    render traces every loaded BSDF (Dr.Jit traces a virtual call into all registered
+    instances): a fixed cost of ~0.1 s a render, which would count against the cheapest
+    BSDFs most. So the time of ``spp`` samples is measured as the difference between
+    renders at ``spp`` and ``spp / 4`` samples, scaled: per-sample work only."""
     import statistics
 
     import drjit as dr
@@ -68,18 +72,23 @@ def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple[str, 
                 scene_dict[shape]["bsdf"].update(bsdf)
         scenes[name] = load_dict(scene_dict)
 
-    def render(scene):
+    def render(scene, n):
         start = time.perf_counter()
-        dr.eval(mi.render(scene, spp=spp))
+        dr.eval(mi.render(scene, spp=n))
         dr.sync_thread()  # the LLVM backend runs kernels asynchronously: wait for this one
         return time.perf_counter() - start
 
+    few = max(spp // 4, 1)
     for scene in scenes.values():
-        render(scene)  # compile once
+        render(scene, spp)  # compile once
+        render(scene, few)
     times = {name: [] for name in scenes}
     for round_ in range(repeats):
         for name, scene in scenes.items():
-            times[name].append(render(scene))
+            # Per-sample time from the difference of two sample counts: a render's fixed
+            # costs (tracing every loaded BSDF, allocations) drop out.
+            extra = render(scene, spp) - render(scene, few)
+            times[name].append(extra * spp / (spp - few))
         print(f"  round {round_ + 1}/{repeats}", flush=True)
     reference = times[next(n for n in scenes if n.startswith("principled"))]
     rows = []
