@@ -27,8 +27,8 @@ BENCH_RANK = 64
 
 
 def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple[str, float, float, float]]:
-    """Seconds per render of the demo scene with each BSDF on both shapes:
-    (name, fastest seconds, Msamples/s, cost vs principled).
+    """Seconds of ``spp`` samples' own work in the demo scene with each BSDF on both shapes:
+    (name, fastest seconds, Msamples/s, cost vs principled). ``spp`` >= 2.
 
     The contenders are timed in interleaved rounds, and a cost is the median over rounds
     of its time over principled's in the same round: on a shared machine whose speed
@@ -78,6 +78,8 @@ def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple[str, 
         dr.sync_thread()  # the LLVM backend runs kernels asynchronously: wait for this one
         return time.perf_counter() - start
 
+    if spp < 2:
+        raise ValueError(f"bench_bsdf_cost: spp must be >= 2 (a difference of two sample counts), got {spp}")
     few = max(spp // 4, 1)
     for scene in scenes.values():
         render(scene, spp)  # compile once
@@ -409,6 +411,8 @@ def main(argv=None) -> int:
     parser.add_argument("--spp", type=int, default=64)
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args(argv)
+    if args.spp < 2:
+        parser.error(f"--spp must be >= 2 (per-sample cost is a difference of two sample counts), got {args.spp}")
 
     import mitsuba as mi
 

@@ -452,11 +452,11 @@ def make_cloth_class():
             transmission."""
             return mi.Vector3f(wo.x, wo.y, dr.abs(wo.z)), flip == (wo.z > 0.0)
 
-        def _visibility_o(self, pt, wo, texel_vis):
+        def _visibility_o(self, pt, wo):
             """V(p, o) of the texel for the outgoing direction (mirrored frame), from its
-            visibility bits ``texel_vis``."""
+            visibility bits ``pt["vis"]``."""
             wo_up, back = self._outgoing_side(pt["flip"], wo)
-            return self.footprint_data.visibility_of(texel_vis, wo_up, back)
+            return self.footprint_data.visibility_of(pt["vis"], wo_up, back)
 
         def _visibility(self, pt, wo):
             """V(p, i, o) of the texel: shadowing x masking by the cloth's height field.
@@ -464,7 +464,7 @@ def make_cloth_class():
             if self.footprint_data is None:
                 return mi.Float(1.0)
             v_i = self.footprint_data.visibility_of(pt["vis"], pt["wi"], pt["flip"])
-            return v_i * self._visibility_o(pt, wo, pt["vis"])
+            return v_i * self._visibility_o(pt, wo)
 
         def _cluster_visibilities_o(self, fr, wo):
             """Every cluster's mean V for the outgoing direction (mirrored frame)."""
@@ -629,7 +629,7 @@ def make_cloth_class():
             if self.use_visibility:
                 # Per residual texel: V(p, i, o) and its cluster's mean v_c(i) v_c(o).
                 cvis_o = self._cluster_visibilities_o(fr, wo)
-                v_p = [t_["v_i"] * self._visibility_o(t_, wo, t_["vis"]) for t_ in texels]
+                v_p = [t_["v_i"] * self._visibility_o(t_, wo) for t_ in texels]
                 vbar_p = [t_["cvis_i"] * _pick(cvis_o, t_["cluster"]) for t_ in texels]
 
             value = mi.Color3f(0.0)
