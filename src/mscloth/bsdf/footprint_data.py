@@ -51,9 +51,10 @@ class FootprintData:
         self.d_cluster_tile = flat_array(tile) if with_sats and tile is not None else None
         if with_sats:
             self.d_sat = ResidualSATs(tables.d_sat, tables.d_mean)
-            # gap, albedo (3), moments (6), cluster histogram (k): one buffer, channel offsets.
-            sats = [tables.gap_sat, tables.albedo_sat, tables.moment_sat, tables.cluster_sat]
-            means = [tables.gap_mean, tables.albedo_mean, tables.moment_mean, tables.cluster_mean]
+            # gap, moments (6), cluster histogram (k), albedo (3): one buffer, channel offsets.
+            # Albedo last: uniformly coloured yarns read the channels before it alone.
+            sats = [tables.gap_sat, tables.moment_sat, tables.cluster_sat, tables.albedo_sat]
+            means = [tables.gap_mean, tables.moment_mean, tables.cluster_mean, tables.albedo_mean]
             sats = np.concatenate([np.asarray(s).reshape(-1, self.H + 1, self.W + 1) for s in sats])
             means = np.concatenate([np.ravel(m) for m in means])
             # Zero channels up to a multiple of four: a footprint reads them all in packets.
@@ -90,9 +91,12 @@ class FootprintData:
         """Each visibility cluster's mean of D(h_b, t) I over the tile for bin ``bin_h``."""
         return gather_block(self.d_cluster_tile, bin_h * self.clusters, self.clusters)
 
-    # Channel offsets inside scalar_sats.
-    GAP, ALBEDO, MOMENTS = 0, 1, 4
-    CLUSTERS = 10
+    # Channel offsets inside scalar_sats (ALBEDO, after the k cluster channels: per instance).
+    GAP, MOMENTS, CLUSTERS = 0, 1, 7
+
+    @property
+    def ALBEDO(self):
+        return self.CLUSTERS + self.clusters
 
     # ------------------------------------------------------------------ visibility
     def texel_visibility(self, ix, iy):
@@ -108,16 +112,26 @@ class FootprintData:
         upper-hemisphere direction ``w`` of the front (back=False) or mirrored back
         (back=True) height field, bilinear over direction bins."""
         bins, weights = hemisphere_bins(w, self.dv)
-        side = dr.select(back, mi.UInt32(32 * self.words_per_side), mi.UInt32(0))
         v = mi.Float(0.0)
+        if self.packed_visibility:
+            # The side's bits as one word (64 bits at 8x8 bins), chosen once per direction:
+            # each bin is then a shift, not a choice among the texel's four words.
+            wps = self.words_per_side
+            if wps == 2:
+                front = mi.UInt64(texel[0]) | (mi.UInt64(texel[1]) << 32)
+                back_bits = mi.UInt64(texel[2]) | (mi.UInt64(texel[3]) << 32)
+                bits = dr.select(back, back_bits, front)
+                for b, wt in zip(bins, weights):
+                    v += dr.select(((bits >> mi.UInt64(b)) & 1) != 0, wt, 0.0)
+            else:
+                bits = dr.select(back, texel[1], texel[0])
+                for b, wt in zip(bins, weights):
+                    v += dr.select(((bits >> b) & 1) != 0, wt, 0.0)
+            return v
+        side = dr.select(back, mi.UInt32(32 * self.words_per_side), mi.UInt32(0))
         for b, wt in zip(bins, weights):
             bit = side + b  # in the texel's block
-            if self.packed_visibility:
-                word = texel[0]
-                for j in range(1, 4):
-                    word = dr.select((bit >> 5) == j, texel[j], word)
-            else:
-                word = gather_word(self.visibility, texel + (bit >> 5))
+            word = gather_word(self.visibility, texel + (bit >> 5))
             v += dr.select(((word >> (bit & 31)) & 1) != 0, wt, 0.0)
         return v
 

@@ -33,8 +33,15 @@ def _up(w):
 
 def eval_sheen(wi, wo, alpha_s, thickness_s):
     """Sheen reflection f_sheen times |cos o| (no colour); zero for wo below."""
-    value, reflect = spongecake.eval_specular(wi, wo, _up(wi), alpha_s, thickness_s)
-    return dr.select(reflect, value, 0.0)
+    return eval_sheen_transmittance(wi, wo, alpha_s, thickness_s)[0]
+
+
+def eval_sheen_transmittance(wi, wo, alpha_s, thickness_s):
+    """(:func:`eval_sheen`, T_sheen(i) T_sheen(o)): the second is what the evaluation's
+    exponentials give anyway (:func:`spongecake.eval_specular_transmittance`), so the
+    yarn lobes' light under the fuzz costs no exponential of its own."""
+    value, reflect, both_ways = spongecake.eval_specular_transmittance(wi, wo, _up(wi), alpha_s, thickness_s)
+    return dr.select(reflect, value, 0.0), both_ways
 
 
 def sample_sheen(wi, alpha_s, sample):

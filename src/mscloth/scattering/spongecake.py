@@ -24,11 +24,13 @@ from . import sggx
 COS_EPSILON = 1e-6
 
 
-def _one_minus_exp_over_x(x):
-    """(1 - e^{-x}) / x for x >= 0, accurate near 0 where the direct form cancels."""
+def _one_minus_exp_over_x(x, exp_minus_x=None):
+    """(1 - e^{-x}) / x for x >= 0, accurate near 0 where the direct form cancels;
+    ``exp_minus_x``: e^{-x} if the caller has it."""
     small = x < 1e-2
     series = 1.0 - x * (0.5 - x * (1.0 / 6.0 - x * (1.0 / 24.0)))
-    direct = (1.0 - dr.exp(-x)) / dr.select(small, 1.0, x)
+    e = dr.exp(-x) if exp_minus_x is None else exp_minus_x
+    direct = (1.0 - e) / dr.select(small, 1.0, x)
     return dr.select(small, series, direct)
 
 
@@ -55,11 +57,20 @@ def transmission_attenuation(lambda_i, lambda_o, thickness):
     Written as e^{-T a} T phi(T (b - a)) with a = min(Li, |Lo|), b = max, which
     is exact, symmetric in (Li, |Lo|) and has the limit T e^{-T L} built in.
     """
-    li = dr.abs(lambda_i)
-    lo = dr.abs(lambda_o)
-    a = dr.minimum(li, lo)
-    b = dr.maximum(li, lo)
-    return dr.exp(-thickness * a) * thickness * _one_minus_exp_over_x(thickness * (b - a))
+    return _attenuations(dr.abs(lambda_i), dr.abs(lambda_o), thickness)[1]
+
+
+def _attenuations(lam_i, lam_o, thickness):
+    """(e^{-T (Li + Lo)}, G_t) for Li, Lo >= 0, from two exponentials: e^{-T a} with
+    a = min(Li, Lo), and e^{-x} with x = T (b - a), b = max(Li, Lo). G_t is
+    e^{-T a} T phi(x) (:func:`transmission_attenuation`) and G_r's exponent T (Li + Lo) is
+    2 T a + x, so a shading point evaluates both lobes with two exponentials, not three."""
+    a = dr.minimum(lam_i, lam_o)
+    b = dr.maximum(lam_i, lam_o)
+    e_a = dr.exp(-thickness * a)
+    x = thickness * (b - a)
+    e_x = dr.exp(-x)
+    return e_a * e_a * e_x, e_a * thickness * _one_minus_exp_over_x(x, e_x)
 
 
 def eval_specular(wi, wo, t, alpha, thickness):
@@ -67,17 +78,29 @@ def eval_specular(wi, wo, t, alpha, thickness):
 
     Returns (value, is_reflection). Zero at grazing directions.
     """
+    return eval_specular_transmittance(wi, wo, t, alpha, thickness)[:2]
+
+
+def eval_specular_transmittance(wi, wo, t, alpha, thickness):
+    """:func:`eval_specular` and e^{-T (|Lambda(i)| + |Lambda(o)|)}, the share of light that
+    crosses the layer unscattered both ways, which the evaluation computes anyway (the
+    sheen: T_sheen(i) T_sheen(o), the fuzz the yarn lobes' light passes)."""
     h = dr.normalize(wi + wo)
     d = sggx.ndf(h, t, alpha)
     sigma_i = sggx.projected_area(wi, t, alpha)
     sigma_o = sggx.projected_area(wo, t, alpha)
-    return eval_specular_from(d, sigma_i, sigma_o, wi, wo, thickness)
+    return _eval_specular(d, sigma_i, sigma_o, wi, wo, thickness)
 
 
 def eval_specular_from(d, sigma_i, sigma_o, wi, wo, thickness):
     """:func:`eval_specular` given the flake density ``d`` = D(h) and the projected
     areas sigma(wi), sigma(wo): the form multi-scale shading uses with footprint-averaged
     D and sigma."""
+    return _eval_specular(d, sigma_i, sigma_o, wi, wo, thickness)[:2]
+
+
+def _eval_specular(d, sigma_i, sigma_o, wi, wo, thickness):
+    """(value, is_reflection, unscattered both ways) of :func:`eval_specular_from`."""
     cos_i = wi.z
     cos_o = wo.z
     valid = (cos_i > COS_EPSILON) & (dr.abs(cos_o) > COS_EPSILON)
@@ -88,15 +111,15 @@ def eval_specular_from(d, sigma_i, sigma_o, wi, wo, thickness):
     # a form that stays finite at grazing angles.
     lam_i = sigma_i / dr.select(valid, cos_i, 1.0)
     lam_o = sigma_o / dr.select(valid, abs_cos_o, 1.0)
-    s = lam_i + lam_o
-    g_r_over_cos_i = (1.0 - dr.exp(-thickness * s)) * abs_cos_o / (sigma_i * abs_cos_o + sigma_o * cos_i)
-    g_t_over_cos_i = transmission_attenuation(lam_i, -lam_o, thickness) / dr.select(valid, cos_i, 1.0)
+    unscattered, g_t = _attenuations(lam_i, lam_o, thickness)
+    g_r_over_cos_i = (1.0 - unscattered) * abs_cos_o / (sigma_i * abs_cos_o + sigma_o * cos_i)
+    g_t_over_cos_i = g_t / dr.select(valid, cos_i, 1.0)
 
     g_over_cos_i = dr.select(reflect, g_r_over_cos_i, g_t_over_cos_i)
     # wi == -wo makes h undefined; that direction has measure zero.
     finite = dr.squared_norm(wi + wo) > 1e-12
     value = dr.select(valid & finite, 0.25 * d * g_over_cos_i, 0.0)
-    return value, reflect
+    return value, reflect, unscattered
 
 
 def sample_specular(wi, t, alpha, sample):
