@@ -414,3 +414,36 @@ def test_packed_visibility_reads_the_table(dv):
     expected = sum(np.array(wt) * table[np.arange(n), np.array(b)] for b, wt in zip(bins, weights))
     assert np.ptp(expected) > 0.5  # shadowed and lit texels both occur
     np.testing.assert_allclose(got, expected, atol=1e-6)
+
+
+@pytest.mark.parametrize("slices", [1, 3])
+def test_footprint_means_are_means_and_lobe_choices_a_distribution(slices):
+    """Footprints of 1-5 texels anywhere, sheared or not: the SAT means of the rounded box
+    are averages (yarn coverage and cluster shares in [0, 1], the shares summing to the
+    coverage) and the sampling mixture's lobe probabilities are >= 0 and sum to 1. Means
+    normalised by the exact area instead read 0.54-1.62 for a gap-free footprint of 2.3
+    texels, and the gap lobe's probability reached -39."""
+    bsdf = mi.load_dict(dict(BASE, footprint_slices=slices))
+    rng = np.random.default_rng(12)
+    n = 20000
+    w = rng.normal(size=(n, 3)); w[:, 2] = np.abs(w[:, 2]) + 0.05
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    si = make_si(mi.Vector3f(*w.T), mi.Point2f(*rng.random((2, n))), n)
+    si.p = mi.Point3f(*rng.random((3, n)))
+    size = rng.uniform(1.0, 5.0, (4, n)) * rng.choice([-1.0, 1.0], (4, n)) / N_TEXELS
+    size[1] *= rng.random(n) < 0.5  # half of them axis-aligned
+    size[2] *= rng.random(n) < 0.5
+    si.duv_dx = mi.Vector2f(size[0], size[1])
+    si.duv_dy = mi.Vector2f(size[2], size[3])
+    fr = bsdf._frame(si, True)
+    st = bsdf._footprint_state(si, fr, [True] * 6)
+    use = np.array(bsdf._footprint(si, fr)["use"])
+    assert use.mean() > 0.9
+    yarn = np.array(st["yarn_mean"])[use]
+    shares = np.array([np.array(f) for f in st["fractions"]])[:, use]
+    assert yarn.min() >= -1e-5 and yarn.max() <= 1.0 + 1e-5
+    assert shares.min() >= -1e-5
+    np.testing.assert_allclose(shares.sum(axis=0), yarn, atol=2e-5)
+    probs = np.array([np.array(p) for p in st["fp_probs"]])[:, use]
+    assert probs.min() >= 0.0
+    np.testing.assert_allclose(probs.sum(axis=0), 1.0, atol=1e-5)

@@ -836,6 +836,26 @@ def test_unwritable_cache_still_returns_tables(maps_sq, tmp_path):
 
 
 # ====================================================== Dr.Jit queries of the residual SATs
+def test_lookup_tables_are_64_byte_aligned_so_packet_reads_stay_packets():
+    """Dr.Jit maps NumPy memory without copying, and a table not 64-byte aligned gets no
+    packet reads: each ``gather_block`` packet silently became four scalar gathers. Tables
+    (float and word) and per-lane inputs come out aligned from any NumPy source, also one
+    whose data starts at an odd offset, with their values intact."""
+    from mscloth.jit_arrays import flat_array, flat_word_array, gather_block, lane_values
+
+    raw = np.arange(1001, dtype=np.float32)
+    for source in (raw[1:], raw[5:].reshape(-1, 2, 2)[:, :, 0], raw[2:].astype(np.uint32)):
+        for make in (flat_array, lane_values, flat_word_array):
+            arr = make(source)
+            view = np.from_dlpack(arr)
+            assert view.ctypes.data % 64 == 0, make.__name__
+            np.testing.assert_array_equal(view, np.ravel(source).astype(view.dtype))
+    table = flat_array(raw[1:])
+    got = gather_block(table, mi.UInt32(np.array([0, 8, 96], dtype=np.uint32)), 8)
+    np.testing.assert_array_equal(np.stack([np.array(g) for g in got], axis=1),
+                                  raw[1:][np.array([0, 8, 96])[:, None] + np.arange(8)])
+
+
 def test_jit_sat_queries_match_brute_force_on_wrapping_rectangles():
     """The BSDF's O(1) queries (bsdf/sat_queries.py) against float64 summation over the same
     texels: exact fractional corners (bilinear reads) and corners rounded to whole texels

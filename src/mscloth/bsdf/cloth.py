@@ -17,7 +17,7 @@ from .footprint_data import FootprintData
 from .lobe_calibration import calibrate
 from .lobes import (DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN,
                     SPECULAR_REFLECTION, SPECULAR_TRANSMISSION)
-from .sat_queries import hemisphere_bins, pick_bin
+from .sat_queries import hemisphere_bins, pick_bin, round_box
 from .parameters import FLOAT_PARAMETERS, SPECTRUM_PARAMETERS, read_parameters
 
 
@@ -551,11 +551,18 @@ def make_cloth_class():
                 xi, xi_round, u_bin = self._hash(si)
             xi_round = mi.Point2f(0.5, 0.5) if xi_round is None else xi_round
             u_bin = mi.Float(0.5) if u_bin is None else u_bin
-            # Every SAT of the footprint is read at corners rounded stochastically to whole
-            # texels (unbiased; one read per corner and channel instead of four: these reads
-            # dominate the cost). The exact area normalises, so means stay unbiased.
-            q = [sats.query_rounded(*box, xi_round.x, xi_round.y) for box in fp["boxes"]]
-            inv_area = dr.rcp(fp["area"])
+            # The footprint shaded is its box with the corners rounded stochastically to
+            # whole texels (expected extent: the footprint's), and every mean is the exact
+            # mean over that rounded box: one SAT read per corner and channel instead of four
+            # (these reads dominate the cost), and means that stay means. Normalised by the
+            # exact area instead, the integrals were unbiased but not bounded: at 2-4 texels
+            # the yarn coverage of a gap-free footprint read 0.54-1.62, so the gap lobe let
+            # light through where there are no gaps (its negative values cannot be sampled)
+            # and lobe probabilities reached -39 and +40 (docs/decisions.md).
+            boxes = [round_box(*box, xi_round.x, xi_round.y) for box in fp["boxes"]]
+            q = [sats.query_on_grid(*box) for box in boxes]
+            areas = [(x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in boxes]
+            inv_area = dr.rcp(sum(areas))
 
             # Every channel at once (gap, moments, cluster histogram, albedo): packets of four
             # neighbouring channels per corner read. Uniformly coloured yarns stop before the
@@ -583,7 +590,7 @@ def make_cloth_class():
 
             # Four texels of the control-variate residual, one uniform in each quadrant of
             # the footprint (stratified: a quarter of the variance of one texel or less).
-            st["texels"] = texels = self._stratified_texels(fr, fp, xi)
+            st["texels"] = texels = self._stratified_texels(fr, boxes, areas, xi)
             if self.use_visibility:
                 st["cvis_i"] = cvis_i = fd.cluster_visibilities(fr["wi"], fr["flip"])
                 for t_ in texels:
@@ -740,25 +747,30 @@ def make_cloth_class():
         # each stays uniform in its quadrant, and together they spread further.
         _STRATA = ((0.0, 0.0, 0.0, 0.0), (1.0, 0.0, 0.5, 0.25), (0.0, 1.0, 0.25, 0.75), (1.0, 1.0, 0.75, 0.5))
 
-        def _stratified_texels(self, fr, fp, xi):
-            """Four texels, one uniform in each quadrant of the footprint (from ``xi``). With
-            K boxes (equal in size) the quadrants are those of [0, 1)^2 mapped onto the boxes
-            side by side along x: uniform over their union, as the SAT means are."""
-            boxes = fp["boxes"]
-            K = len(boxes)
+        def _stratified_texels(self, fr, boxes, areas, xi):
+            """Four texels, one uniform in each quadrant of the footprint (from ``xi``), in
+            the rounded boxes the SAT means cover. With K boxes the quadrants are those of
+            [0, 1)^2 laid across the boxes along x in proportion to their areas: uniform
+            over their union, as the SAT means are."""
             texels = []
             for qx, qy, cx, cy in self._STRATA:
                 sx = xi.x + cx
                 sy = xi.y + cy
                 u = 0.5 * (qx + sx - dr.floor(sx))  # across the boxes, in [0, 1)
                 v = 0.5 * (qy + sy - dr.floor(sy))
-                if K == 1:
-                    x0, y0 = boxes[0][0], boxes[0][1]
-                else:
-                    j = mi.UInt32(dr.minimum(dr.floor(u * K), K - 1))
-                    u = u * K - mi.Float(j)
-                    x0, y0 = _pick([b[0] for b in boxes], j), _pick([b[1] for b in boxes], j)
-                texels.append(self._texel(fr, x0 + 2.0 * u * fp["rx"], y0 + 2.0 * v * fp["ry"]))
+                x0, y0, x1, y1 = boxes[0]
+                if len(boxes) > 1:
+                    # The box whose share of the union's area holds u, and u within it.
+                    at = u * sum(areas)
+                    start = mi.Float(0.0)
+                    u_first = u
+                    for j, (box, area) in enumerate(zip(boxes, areas)):
+                        inside = (at >= start) if j else mi.Bool(True)
+                        x0, y0, x1, y1 = (dr.select(inside, b, c) for b, c in zip(box, (x0, y0, x1, y1)))
+                        u_first = dr.select(inside, (at - start) / dr.maximum(area, 1.0), u_first)
+                        start = start + area
+                    u = dr.minimum(u_first, 0.99999994)
+                texels.append(self._texel(fr, x0 + u * (x1 - x0), y0 + v * (y1 - y0)))
             return texels
 
         def _mixture_pdf(self, fr, st, wo, enabled):
@@ -770,32 +782,25 @@ def make_cloth_class():
             eps_side = dr.select(wo.z > 0.0, eps_c - eps_lower, eps_lower)
             return dr.select(valid, (1.0 - eps_c) * pdf + eps_side * dr.abs(wo.z) * dr.inv_pi, 0.0)
 
-        def _hash_words(self, si):
-            """Two well-mixed 32-bit words per shading point, from si.uv and si.p: one TEA
-            (a TEA costs ~40 ops; shadow rays crossing cloth need only these two)."""
-            def bits(x):  # 24 bits of a float's fractional part
-                return mi.UInt32((x - dr.floor(x)) * 16777216.0)
-
-            a = bits(si.uv.x * 997.0 + si.uv.y * 31.0 + si.p.x * 1.618 + si.p.z * 0.577)
-            b = bits(si.uv.y * 991.0 + si.uv.x * 37.0 + si.p.y * 1.414 + si.p.z * 0.318)
-            return mi.sample_tea_32(a, b)
-
-        @staticmethod
-        def _unit(v):
-            """The top 24 bits of a word as a number in [0, 1)."""
-            return mi.Float(v >> 8) * (1.0 / 16777216.0)
-
         def _hash(self, si):
             """Deterministic pseudo-random numbers per shading point, from si.uv and si.p:
             (xi, xi_round, u_bin), two 2D points and one number: the stratified texels, the
             SAT rounding and the direction-bin choice of the footprint (or xi: the point in
             a sub-texel footprint), in eval(), where Mitsuba passes no random numbers. si.p
             varies between the samples of one pixel, whose footprints ``clothpath`` centres
-            on the same uv. Two TEAs: four words give the points their top 24 bits each,
-            and u_bin the words' low bytes."""
-            v0, v1 = self._hash_words(si)
+            on the same uv. Two TEAs (~40 ops each): four words give the points their top
+            24 bits each, and u_bin the words' low bytes."""
+            def bits(x):  # 24 bits of a float's fractional part
+                return mi.UInt32((x - dr.floor(x)) * 16777216.0)
+
+            a = bits(si.uv.x * 997.0 + si.uv.y * 31.0 + si.p.x * 1.618 + si.p.z * 0.577)
+            b = bits(si.uv.y * 991.0 + si.uv.x * 37.0 + si.p.y * 1.414 + si.p.z * 0.318)
+            v0, v1 = mi.sample_tea_32(a, b)
             v2, v3 = mi.sample_tea_32(v0, v1)
-            unit = self._unit
+
+            def unit(v):  # the top 24 bits -> [0, 1)
+                return mi.Float(v >> 8) * (1.0 / 16777216.0)
+
             low = ((v0 & 255) << 16) | ((v1 & 255) << 8) | (v2 & 255)
             return mi.Point2f(unit(v0), unit(v1)), mi.Point2f(unit(v2), unit(v3)), unit(low << 8)
 
@@ -997,12 +1002,11 @@ def make_cloth_class():
             if self.multiscale:
                 fp = self._footprint(si, fr)
                 sats = self.footprint_data.scalar_sats
-                # Corners rounded stochastically, as in _footprint_state: unbiased, and one
-                # read per corner instead of four (shadow rays cross cloth at every depth).
-                v0, v1 = self._hash_words(si)
-                xi_round = mi.Point2f(self._unit(v0), self._unit(v1))
-                covered = sum(sats.integral(sats.query_rounded(*box, xi_round.x, xi_round.y), self.footprint_data.GAP)
-                              for box in fp["boxes"])
+                # Exact corners: stochastic rounding (one read per corner instead of four) is
+                # unbiased only before the clip below, which a nearly gap-free footprint
+                # needs (the rounded box can hold more yarn than the exact area): clipped,
+                # it let light through where there are no gaps (docs/decisions.md).
+                covered = sum(sats.integral(sats.query(*box), self.footprint_data.GAP) for box in fp["boxes"])
                 yarn = dr.select(fp["use"], covered / fp["area"], yarn)
             t_sheen = fr["t_sheen_i"]
             return dr.select(active & (dr.abs(si.wi.z) > spongecake.COS_EPSILON),

@@ -124,15 +124,13 @@ class ResidualSATs:
         return RectQuery(self, *self._home(x0, y0, x1, y1))
 
     def query_rounded(self, x0, y0, x1, y1, xi_x, xi_y) -> RectQuery:
-        """The rectangle with its corners rounded stochastically to whole texels:
-        x -> floor(x + xi_x), y -> floor(y + xi_y), with xi uniform in [0, 1).
+        """The rectangle with its corners rounded stochastically to whole texels
+        (:func:`round_box`): one read per corner and channel instead of four."""
+        return self.query_on_grid(*round_box(x0, y0, x1, y1, xi_x, xi_y))
 
-        S(x, y) is bilinear inside a texel, and rounding x up with probability frac(x)
-        (independently of y) gives the bilinear weights, so the expected integral is the
-        exact one while each corner costs one read instead of four. One xi per axis keeps
-        the rounded width within one texel of the true width (less noise)."""
-        return RectQuery(self, *self._home(dr.floor(x0 + xi_x), dr.floor(y0 + xi_y),
-                                           dr.floor(x1 + xi_x), dr.floor(y1 + xi_y)), on_grid=True)
+    def query_on_grid(self, x0, y0, x1, y1) -> RectQuery:
+        """:meth:`query` for corners at whole texel coordinates."""
+        return RectQuery(self, *self._home(x0, y0, x1, y1), on_grid=True)
 
     def integrals(self, q: RectQuery, first: int, n: int):
         """:meth:`integral` of the ``n`` channels from ``first`` on (Python ints), read in
@@ -213,6 +211,17 @@ class ResidualSATs:
         total), whole columns and rows of tiles (the last column / row of S), and the
         remainder inside the tile."""
         return c.qx * c.qy * total + c.qx * col + c.qy * row + inner
+
+
+def round_box(x0, y0, x1, y1, xi_x, xi_y):
+    """The texel rectangle with its corners rounded stochastically to whole texels:
+    x -> floor(x + xi_x), y -> floor(y + xi_y), with xi uniform in [0, 1).
+
+    S(x, y) is bilinear inside a texel, and rounding x up with probability frac(x)
+    (independently of y) gives the bilinear weights, so the expected integral is the
+    exact one. One xi per axis keeps the rounded width within one texel of the true
+    width, and its expectation equal to it."""
+    return dr.floor(x0 + xi_x), dr.floor(y0 + xi_y), dr.floor(x1 + xi_x), dr.floor(y1 + xi_y)
 
 
 def hemisphere_bins(w, n: int):
