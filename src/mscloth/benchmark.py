@@ -26,9 +26,10 @@ def _best_of(fn, repeats: int) -> float:
 BENCH_RANK = 64
 
 
-def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple[str, float, float, float]]:
+def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple]:
     """Seconds of ``spp`` samples' own work in the demo scene with each BSDF on both shapes:
-    (name, fastest seconds, Msamples/s, cost vs principled). ``spp`` >= 2.
+    (name, fastest seconds, Msamples/s, cost vs principled, (lowest, highest) per-round
+    cost). ``spp`` >= 2.
 
     The contenders are timed in interleaved rounds, and a cost is the median over rounds
     of its time over principled's in the same round: on a shared machine whose speed
@@ -95,9 +96,12 @@ def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple[str, 
     reference = times[next(n for n in scenes if n.startswith("principled"))]
     rows = []
     for name, seconds in times.items():
-        cost = statistics.median(t / r for t, r in zip(seconds, reference))
-        rows.append((name, min(seconds), resolution * resolution * spp / min(seconds) / 1e6, cost))
-        print(f"  {name:45s} {min(seconds):7.3f} s  {rows[-1][2]:7.2f} Msamples/s  {cost:5.2f}x", flush=True)
+        ratios = [t / r for t, r in zip(seconds, reference)]
+        cost = statistics.median(ratios)
+        rows.append((name, min(seconds), resolution * resolution * spp / min(seconds) / 1e6, cost,
+                     (min(ratios), max(ratios))))
+        print(f"  {name:45s} {min(seconds):7.3f} s  {rows[-1][2]:7.2f} Msamples/s  {cost:5.2f}x "
+              f"(rounds {min(ratios):.2f}-{max(ratios):.2f})", flush=True)
     return rows
 
 
@@ -300,13 +304,16 @@ def write_results(path: Path, command: str, variant: str, cost_rows, cost_setup,
         "",
         "Seconds: the samples' own work (a render at spp minus one at spp/4, scaled to spp; a",
         "render's fixed costs drop out), fastest round. Cost: the median over rounds of that",
-        "time over principled's in the same round (the machine's speed drifts between rounds).",
+        "time over principled's in the same round (the machine's speed drifts between rounds),",
+        "and the lowest and highest of those ratios. This shared machine's figures also move",
+        "between runs: the same code measured 2.3-3.5x for multi-scale in separate processes",
+        "(docs/decisions.md); compare contenders within one run.",
         "",
-        "| BSDF on both shapes | seconds | M samples/s | cost vs principled |",
-        "|---|---|---|---|",
+        "| BSDF on both shapes | seconds | M samples/s | cost vs principled | rounds: lowest-highest |",
+        "|---|---|---|---|---|",
     ]
-    for name, seconds, rate, cost in cost_rows:
-        lines.append(f"| {name} | {seconds:.3f} | {rate:.2f} | {cost:.2f}x |")
+    for name, seconds, rate, cost, (low, high) in cost_rows:
+        lines.append(f"| {name} | {seconds:.3f} | {rate:.2f} | {cost:.2f}x | {low:.2f}-{high:.2f}x |")
     lines += [
         "",
         "All renders use the `clothpath` integrator (it hands BSDFs their pixel footprints:",
