@@ -25,9 +25,13 @@ def test_results_page_has_every_table_and_the_split_of_the_speed_up(tmp_path):
                   1024, table_rows=[(512, 32, 0, 10.0, 1078.0, 1028.0), (512, 32, 64, 17.0, 115.0, 65.0),
                                     (256, 16, 0, 1.4, 77.0, 65.0)],
                   ccv_rows=[(2.0, [0.6, -0.2, 0.77], [-0.1, 0.7, 0.7], [(0.02, 0.009), (0.05, 0.009), (-0.01, 0.008)])],
-                  compare_rows=compare, budget_rows=[("plane", {g: BUDGET for g in ("near", "middle", "far")})])
+                  compare_rows=compare, budget_rows=[("plane", {g: BUDGET for g in ("near", "middle", "far")})],
+                  call_rows=[("cloth (mscloth, multi-scale)", 0.27, 16.1), ("principled (Mitsuba)", 0.018, 1.0)],
+                  call_setup="2097152 shading points")
     text = out.read_text()
     assert "| cloth (mscloth, multi-scale) | 2.400 | 1.70 | 9.50x | 8.70-11.25x |" in text
+    assert "### The BSDFs alone (2097152 shading points)" in text
+    assert "| cloth (mscloth, multi-scale) | 270.0 | 16.10x |" in text
     # The default under max_table_mib: rank 64 for 512^2 at 32^2 bins, the full table at 256^2, 16^2.
     assert "| 512x512 | 32 | rank 64 (`direction_rank`) = default | 17.0 | 115 | 65 |" in text
     assert "| 512x512 | 32 | full | 10.0 | 1078 | 1028 |" in text

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import statistics
 import sys
 import time
 from pathlib import Path
@@ -39,8 +40,6 @@ def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple]:
     instances): a fixed cost of ~0.1 s a render, which would count against the cheapest
     BSDFs most. So the time of ``spp`` samples is measured as the difference between
     renders at ``spp`` and ``spp / 4`` samples, scaled: per-sample work only."""
-    import statistics
-
     import drjit as dr
     import mitsuba as mi
 
@@ -102,6 +101,86 @@ def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple]:
                      (min(ratios), max(ratios))))
         print(f"  {name:45s} {min(seconds):7.3f} s  {rows[-1][2]:7.2f} Msamples/s  {cost:5.2f}x "
               f"(rounds {min(ratios):.2f}-{max(ratios):.2f})", flush=True)
+    return rows
+
+
+#: Footprint width (texels) of the BSDF-call benchmark's multi-scale lanes.
+CALL_FOOTPRINT_TEXELS = 8.0
+#: Lanes that share one uv (and footprint) in the BSDF-call benchmark, as the samples of one
+#: pixel do on camera rays; each has its own directions and random numbers.
+CALL_LANES_PER_UV = 16
+
+
+def bench_bsdf_calls(lanes: int = 1 << 21, repeats: int = 7) -> list[tuple[str, float, float]]:
+    """The BSDFs alone: seconds for ``lanes`` shading points of eval_pdf at one direction
+    plus one sample, the calls clothpath makes at a vertex (its ``eval_pdf_sample_n``), and
+    the median over interleaved rounds of each one's time over principled's: (name,
+    fastest seconds, cost vs principled). No ray tracing, no integrator, nothing else in
+    the kernel, so it moves much less between runs than the render's per-sample cost.
+
+    The demo sphere's cloth, multi-scale on footprints of CALL_FOOTPRINT_TEXELS texels
+    (CALL_LANES_PER_UV lanes per uv, as a pixel's samples) and fibre level; viewer
+    directions in the upper hemisphere, evaluated directions anywhere."""
+    import drjit as dr
+    import mitsuba as mi
+    import numpy as np
+
+    from .integrators.clothpath import eval_pdf_sample_n
+    from .jit_arrays import lane_values
+    from .scenes.demo import demo_scene
+
+    cloth = demo_scene(resolution=32)["ball"]["bsdf"]
+    bsdfs = {
+        "cloth (mscloth, multi-scale)": mi.load_dict(cloth),
+        "cloth (mscloth, fibre-level)": mi.load_dict(dict(cloth, multiscale=False)),
+        "principled (Mitsuba)": mi.load_dict({"type": "principled", "base_color": {"type": "rgb", "value": [0.4, 0.1, 0.1]},
+                                              "roughness": 0.4, "sheen": 0.5, "spec_trans": 0.2}),
+        "roughconductor (Mitsuba)": mi.load_dict({"type": "roughconductor", "alpha": 0.3}),
+    }
+    rng = np.random.default_rng(0)
+
+    def directions(upper):
+        mu = rng.random(lanes) * 0.98 + 0.01 if upper else rng.random(lanes) * 2.0 - 1.0
+        phi = rng.random(lanes) * 2.0 * np.pi
+        sin = np.sqrt(1.0 - mu * mu)
+        return mi.Vector3f(*(lane_values(c) for c in (sin * np.cos(phi), sin * np.sin(phi), mu)))
+
+    si = dr.zeros(mi.SurfaceInteraction3f, lanes)
+    si.wi = directions(True)
+    groups = lanes // CALL_LANES_PER_UV
+    si.uv = mi.Point2f(*(lane_values(np.repeat(rng.random(groups), CALL_LANES_PER_UV)) for _ in range(2)))
+    si.p = mi.Point3f(*(lane_values(rng.random(lanes)) for _ in range(3)))
+    texels_u = cloth["uv_scale"] * bsdfs["cloth (mscloth, multi-scale)"].tile_w
+    texels_v = cloth["uv_scale_v"] * bsdfs["cloth (mscloth, multi-scale)"].tile_h
+    si.duv_dx = mi.Vector2f(CALL_FOOTPRINT_TEXELS / texels_u, 0.0)
+    si.duv_dy = mi.Vector2f(0.0, CALL_FOOTPRINT_TEXELS / texels_v)
+    si.n = mi.Normal3f(0.0, 0.0, 1.0)
+    si.sh_frame = mi.Frame3f(si.n)
+    wo = directions(False)
+    sample1 = lane_values(rng.random(lanes))
+    sample2 = mi.Point2f(*(lane_values(rng.random(lanes)) for _ in range(2)))
+    dr.eval(si, wo, sample1, sample2)
+    ctx = mi.BSDFContext()
+
+    def call(bsdf):
+        start = time.perf_counter()
+        values, pdfs, bs, weight = eval_pdf_sample_n(bsdf, ctx, si, si, [wo], sample1, sample2)
+        dr.eval(values[0], pdfs[0], bs.wo, bs.pdf, weight)
+        dr.sync_thread()
+        return time.perf_counter() - start
+
+    for bsdf in bsdfs.values():
+        call(bsdf)  # compile once
+    times = {name: [] for name in bsdfs}
+    for _ in range(repeats):
+        for name, bsdf in bsdfs.items():
+            times[name].append(call(bsdf))
+    reference = times["principled (Mitsuba)"]
+    rows = []
+    for name, seconds in times.items():
+        cost = statistics.median(t / r for t, r in zip(seconds, reference))
+        rows.append((name, min(seconds), cost))
+        print(f"  {name:45s} {min(seconds) * 1e3:7.1f} ms  {cost:5.2f}x", flush=True)
     return rows
 
 
@@ -292,7 +371,8 @@ def _budget_lines(budget_rows, compare_rows) -> list[str]:
 
 
 def write_results(path: Path, command: str, variant: str, cost_rows, cost_setup, maps_seconds, maps_res,
-                  table_rows=(), ccv_rows=(), compare_rows=(), budget_rows=()) -> None:
+                  table_rows=(), ccv_rows=(), compare_rows=(), budget_rows=(), call_rows=(),
+                  call_setup="") -> None:
     lines = [
         "# Benchmark results",
         "",
@@ -321,6 +401,21 @@ def write_results(path: Path, command: str, variant: str, cost_rows, cost_setup,
         "point, unless `scattered_footprints` keeps the ray cones there).",
         "Target (issue 4/5): multi-scale `cloth` at most 2x `principled`.",
         "",
+    ]
+    if call_rows:
+        lines += [
+            f"### The BSDFs alone ({call_setup})",
+            "",
+            "eval_pdf at one direction plus one sample per shading point, the calls `clothpath`",
+            "makes at a vertex; no ray tracing. Multi-scale shades a footprint this way only at",
+            "a path's first hit (and along delta chains); later vertices use the fibre level.",
+            "",
+            "| BSDF | fastest ms | cost vs principled |",
+            "|---|---|---|",
+        ]
+        lines += [f"| {name} | {seconds * 1e3:.1f} | {cost:.2f}x |" for name, seconds, cost in call_rows]
+        lines += [""]
+    lines += [
         "## Multi-scale tables (plain weave, roughness 0.3, 8x8 visibility directions, 8 clusters)",
         "",
         "| tile | dr | directional SAT | build seconds | memory MiB | of which directional SAT |",
@@ -431,6 +526,9 @@ def main(argv=None) -> int:
     print(f"benchmark: variant {variant}", flush=True)
     print(f"per-sample cost, demo scene {args.res}x{args.res} at {args.spp} spp:", flush=True)
     cost_rows = bench_bsdf_cost(args.res, args.spp, args.repeats)
+    lanes = 1 << 21
+    print(f"the BSDFs alone, {lanes} shading points:", flush=True)
+    call_rows = bench_bsdf_calls(lanes)
     maps_res = 1024
     print(f"map generation, {maps_res} texels along u:", flush=True)
     maps_seconds = bench_map_generation(maps_res, 3)
@@ -445,7 +543,9 @@ def main(argv=None) -> int:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_results(out, "make bench", variant, cost_rows, f"{args.res}x{args.res}, {args.spp} spp",
-                  maps_seconds, maps_res, table_rows, ccv_rows, compare_rows, budget_rows)
+                  maps_seconds, maps_res, table_rows, ccv_rows, compare_rows, budget_rows, call_rows,
+                  f"{lanes} shading points, footprints of {CALL_FOOTPRINT_TEXELS:g} texels shared by "
+                  f"{CALL_LANES_PER_UV} lanes")
     print(f"wrote {out}")
     return 0
 
