@@ -511,7 +511,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default="bench/RESULTS.md")
     parser.add_argument("--res", type=int, default=256)
     parser.add_argument("--spp", type=int, default=64)
-    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--repeats", type=int, default=9)
     args = parser.parse_args(argv)
     if args.spp < 2:
         parser.error(f"--spp must be >= 2 (per-sample cost is a difference of two sample counts), got {args.spp}")
