@@ -23,6 +23,20 @@ def _best_of(fn, repeats: int) -> float:
     return best
 
 
+def _ratios_to_principled(times: dict) -> dict:
+    """Each contender's per-round times over principled's in the same round (rounds are
+    interleaved, so each ratio sees one state of the shared machine)."""
+    reference = times[next(name for name in times if name.startswith("principled"))]
+    return {name: [t / r for t, r in zip(seconds, reference)] for name, seconds in times.items()}
+
+
+#: Mitsuba's BSDFs that both cost benchmarks compare the cloth with (principled: the reference).
+MITSUBA_CONTENDERS = {
+    "principled (Mitsuba)": {"type": "principled", "base_color": {"type": "rgb", "value": [0.4, 0.1, 0.1]},
+                             "roughness": 0.4, "sheen": 0.5, "spec_trans": 0.2},
+    "roughconductor (Mitsuba)": {"type": "roughconductor", "alpha": 0.3},
+}
+
 #: Rank of the compressed directional SAT measured beside the full one.
 BENCH_RANK = 64
 
@@ -55,9 +69,7 @@ def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple]:
         # What the height field's shadowing and masking cost (half of a footprint evaluation).
         "cloth (multi-scale, visibility off)": {"visibility": False},
         "cloth (mscloth, fibre-level)": {"multiscale": False},
-        "principled (Mitsuba)": {"type": "principled", "base_color": {"type": "rgb", "value": [0.4, 0.1, 0.1]},
-                                 "roughness": 0.4, "sheen": 0.5, "spec_trans": 0.2},
-        "roughconductor (Mitsuba)": {"type": "roughconductor", "alpha": 0.3},
+        **MITSUBA_CONTENDERS,
         "diffuse (Mitsuba)": {"type": "diffuse"},
     }
     scenes = {}
@@ -92,10 +104,8 @@ def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple]:
             extra = render(scene, spp) - render(scene, few)
             times[name].append(extra * spp / (spp - few))
         print(f"  round {round_ + 1}/{repeats}", flush=True)
-    reference = times[next(n for n in scenes if n.startswith("principled"))]
     rows = []
-    for name, seconds in times.items():
-        ratios = [t / r for t, r in zip(seconds, reference)]
+    for (name, seconds), ratios in zip(times.items(), _ratios_to_principled(times).values()):
         cost = statistics.median(ratios)
         rows.append((name, min(seconds), resolution * resolution * spp / min(seconds) / 1e6, cost,
                      (min(ratios), max(ratios))))
@@ -133,9 +143,7 @@ def bench_bsdf_calls(lanes: int = 1 << 21, repeats: int = 7) -> list[tuple[str, 
     bsdfs = {
         "cloth (mscloth, multi-scale)": mi.load_dict(cloth),
         "cloth (mscloth, fibre-level)": mi.load_dict(dict(cloth, multiscale=False)),
-        "principled (Mitsuba)": mi.load_dict({"type": "principled", "base_color": {"type": "rgb", "value": [0.4, 0.1, 0.1]},
-                                              "roughness": 0.4, "sheen": 0.5, "spec_trans": 0.2}),
-        "roughconductor (Mitsuba)": mi.load_dict({"type": "roughconductor", "alpha": 0.3}),
+        **{name: mi.load_dict(bsdf) for name, bsdf in MITSUBA_CONTENDERS.items()},
     }
     rng = np.random.default_rng(0)
 
@@ -175,10 +183,9 @@ def bench_bsdf_calls(lanes: int = 1 << 21, repeats: int = 7) -> list[tuple[str, 
     for _ in range(repeats):
         for name, bsdf in bsdfs.items():
             times[name].append(call(bsdf))
-    reference = times["principled (Mitsuba)"]
     rows = []
-    for name, seconds in times.items():
-        cost = statistics.median(t / r for t, r in zip(seconds, reference))
+    for (name, seconds), ratios in zip(times.items(), _ratios_to_principled(times).values()):
+        cost = statistics.median(ratios)
         rows.append((name, min(seconds), cost))
         print(f"  {name:45s} {min(seconds) * 1e3:7.1f} ms  {cost:5.2f}x", flush=True)
     return rows
@@ -386,8 +393,8 @@ def write_results(path: Path, command: str, variant: str, cost_rows, cost_setup,
         "render's fixed costs drop out), fastest round. Cost: the median over rounds of that",
         "time over principled's in the same round (the machine's speed drifts between rounds),",
         "and the lowest and highest of those ratios. This shared machine's figures also move",
-        "between runs: the same code measured 2.3-3.5x for multi-scale in separate processes",
-        "(docs/decisions.md); compare contenders within one run.",
+        "between runs (docs/decisions.md): compare contenders within one run, and see the",
+        "BSDFs alone below, which move less.",
         "",
         "| BSDF on both shapes | seconds | M samples/s | cost vs principled | rounds: lowest-highest |",
         "|---|---|---|---|---|",

@@ -27,9 +27,8 @@ def _aligned(values, dtype) -> np.ndarray:
 def flat_array(values: np.ndarray):
     """A flat float32 Dr.Jit array of ``values`` that ``dr.gather`` reads, in every variant
     (a 64-byte aligned JIT array in llvm/cuda, a dynamic array in scalar variants)."""
-    if dr.is_jit_v(mi.Float):
-        return mi.Float(_aligned(values, np.float32))
-    return mi.TensorXf(np.ascontiguousarray(np.asarray(values, dtype=np.float32).ravel())).array
+    aligned = _aligned(values, np.float32)
+    return mi.Float(aligned) if dr.is_jit_v(mi.Float) else mi.TensorXf(aligned).array
 
 
 def lane_values(values) -> "mi.Float":
@@ -47,9 +46,8 @@ def gather(source, index, active=True):
 
 def flat_word_array(values: np.ndarray):
     """A flat uint32 array of ``values`` for :func:`gather_word`."""
-    if dr.is_jit_v(mi.Float):
-        return mi.UInt32(_aligned(values, np.uint32))
-    return np.ascontiguousarray(np.asarray(values, dtype=np.uint32).ravel())
+    aligned = _aligned(values, np.uint32)
+    return mi.UInt32(aligned) if dr.is_jit_v(mi.Float) else aligned
 
 
 def gather_word(source, index, active=True):

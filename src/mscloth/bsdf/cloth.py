@@ -561,7 +561,7 @@ def make_cloth_class():
             # and lobe probabilities reached -39 and +40 (docs/decisions.md).
             boxes = [round_box(*box, xi_round.x, xi_round.y) for box in fp["boxes"]]
             q = [sats.query_on_grid(*box) for box in boxes]
-            areas = [(x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in boxes]
+            areas = [q_.area for q_ in q]
             inv_area = dr.rcp(sum(areas))
 
             # Every channel at once (gap, moments, cluster histogram, albedo): packets of four
@@ -801,8 +801,8 @@ def make_cloth_class():
             def unit(v):  # the top 24 bits -> [0, 1)
                 return mi.Float(v >> 8) * (1.0 / 16777216.0)
 
-            low = ((v0 & 255) << 16) | ((v1 & 255) << 8) | (v2 & 255)
-            return mi.Point2f(unit(v0), unit(v1)), mi.Point2f(unit(v2), unit(v3)), unit(low << 8)
+            low = ((v0 & 255) << 16) | ((v1 & 255) << 8) | (v2 & 255)  # 24 bits
+            return mi.Point2f(unit(v0), unit(v1)), mi.Point2f(unit(v2), unit(v3)), mi.Float(low) * (1.0 / 16777216.0)
 
         def _mirror(self, fr, wo):
             return mi.Vector3f(wo.x, wo.y, fr["sign"] * wo.z)

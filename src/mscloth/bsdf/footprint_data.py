@@ -116,17 +116,16 @@ class FootprintData:
         if self.packed_visibility:
             # The side's bits as one word (64 bits at 8x8 bins), chosen once per direction:
             # each bin is then a shift, not a choice among the texel's four words.
-            wps = self.words_per_side
-            if wps == 2:
-                front = mi.UInt64(texel[0]) | (mi.UInt64(texel[1]) << 32)
-                back_bits = mi.UInt64(texel[2]) | (mi.UInt64(texel[3]) << 32)
-                bits = dr.select(back, back_bits, front)
-                for b, wt in zip(bins, weights):
-                    v += dr.select(((bits >> mi.UInt64(b)) & 1) != 0, wt, 0.0)
+            if self.words_per_side == 2:
+                word = mi.UInt64
+                front = word(texel[0]) | (word(texel[1]) << 32)
+                back_bits = word(texel[2]) | (word(texel[3]) << 32)
             else:
-                bits = dr.select(back, texel[1], texel[0])
-                for b, wt in zip(bins, weights):
-                    v += dr.select(((bits >> b) & 1) != 0, wt, 0.0)
+                word = mi.UInt32
+                front, back_bits = texel[0], texel[1]
+            bits = dr.select(back, back_bits, front)
+            for b, wt in zip(bins, weights):
+                v += dr.select(((bits >> word(b)) & 1) != 0, wt, 0.0)
             return v
         side = dr.select(back, mi.UInt32(32 * self.words_per_side), mi.UInt32(0))
         for b, wt in zip(bins, weights):
