@@ -321,3 +321,37 @@ def test_gap_transmission_of_a_footprint_is_its_exact_gap_fraction():
         yarn = float(np.array(sats.integral(q, fd.GAP))[0]) / (4.0 * rx * ry)
         t = float(np.array(bsdf._frame(si, True)["t_sheen_i"])[0])
         np.testing.assert_allclose(got, t * t * np.clip(1.0 - yarn, 0.0, 1.0), rtol=1e-5, atol=1e-6)
+
+
+def test_gap_transmission_skips_the_tables_only_for_lanes_without_a_footprint():
+    """One call, lanes with and without footprints (shadow rays from the first hit and from
+    vertices shaded at a point): each lane gets what it gets alone, the footprint's gap
+    fraction or its texel's (the footprint reads sit in a symbolic if)."""
+    bsdf = mi.load_dict(dict(CLOTH, visibility=False))
+    n = 256
+    rng = np.random.default_rng(4)
+    wi = rng.normal(size=(n, 3))
+    wi[:, 2] = np.abs(wi[:, 2]) + 0.2
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    uv = rng.random((n, 2))
+    width = np.where(np.arange(n) % 3 == 0, 0.0, rng.uniform(1.5, 30.0, n)) / bsdf.tile_w
+
+    def interaction(lanes):
+        si = make_si(vec(wi[lanes]), mi.Point2f(*uv[lanes].T), len(lanes))
+        si.duv_dx = mi.Vector2f(mi.Float(width[lanes]), 0.0)
+        si.duv_dy = mi.Vector2f(0.0, mi.Float(0.8 * width[lanes] * bsdf.tile_w / bsdf.tile_h))
+        return si
+
+    def call(lanes):
+        return np.array(bsdf.gap_transmission(interaction(lanes)))
+
+    mixed = call(np.arange(n))
+    point = np.flatnonzero(width == 0.0)
+    footprint = np.flatnonzero(width > 0.0)
+    np.testing.assert_allclose(mixed[point], call(point), rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(mixed[footprint], call(footprint), rtol=1e-5, atol=1e-6)
+    # Points see one texel: no gap (0) or the gap (T_sheen^2); footprints, fractions between.
+    t2 = np.array(bsdf._frame(interaction(point), True)["t_sheen_i"]) ** 2
+    assert np.all(np.isclose(mixed[point], 0.0, atol=1e-7) | np.isclose(mixed[point], t2, rtol=1e-5))
+    assert np.any(mixed[point] > 0.0) and np.any(mixed[point] == 0.0)
+    assert np.any((mixed[footprint] > 0.0) & (mixed[footprint] < 0.9 * np.max(t2)))

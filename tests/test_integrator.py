@@ -744,6 +744,49 @@ def test_sun_shines_through_the_gaps_of_cloth(multiscale):
     assert abs(under - expected) <= 5.0 * err + 0.05 * expected, (under, expected, err)
 
 
+def _floor_under_opaque_sheet(max_depth, spp=16):
+    """Seen from under a cloth sheet that transmits only through its gaps (no transmission
+    lobes): a floor lit by a sun above the sheet. Light reaches the image only by shadow
+    rays crossing the sheet: from the floor at the first hit, or from floors reached again
+    after bouncing off the sheet's underside."""
+    import mscloth
+
+    mscloth.register()
+    cloth = {"type": "cloth", "pattern": "plain", "uv_scale": 400.0, "specular_transmittance": 0.0,
+             "diffuse_transmittance": 0.0, "diffuse_albedo": 0.5}
+    scene = mi.load_dict({
+        "type": "scene", "integrator": {"type": "clothpath", "max_depth": max_depth, "rr_depth": 100},
+        "sensor": {"type": "perspective", "fov": 30,
+                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 0.9], target=[0, 0, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 8, "height": 8, "rfilter": {"type": "box"}}},
+        "floor": {"type": "rectangle", "to_world": mi.ScalarTransform4f().scale(30),
+                  "bsdf": {"type": "diffuse", "reflectance": 0.8}},
+        "cloth": {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, 0, 1]).scale(30),
+                  "bsdf": cloth},
+        "sun": {"type": "directional", "direction": [0, 0, -1], "irradiance": 1.0}})
+    return render(scene, spp, 1)[..., :3].mean()
+
+
+def test_shadow_rays_from_point_shaded_vertices_cross_cloth_at_a_point(monkeypatch):
+    """Only vertices that carry a footprint (the first hit and delta chains) hand their ray
+    cone to shadow rays crossing cloth; after a rough bounce the vertex is shaded at a point,
+    and so are its shadow rays' crossings (a zero cone: one texel's gap, no table reads).
+    With crossings made to pass light only when they have a cone, the floors reached after
+    the first bounce add nothing; with real crossings they do (so such crossings happen)."""
+    from mscloth.integrators import gap_shadows
+
+    real_direct, real_all = _floor_under_opaque_sheet(2), _floor_under_opaque_sheet(6)
+    assert real_all > 1.05 * real_direct > 0.0, (real_direct, real_all)
+
+    def only_with_a_cone(scene, si, target, cone_width, cone_spread, active):
+        return dr.select((cone_width > 0.0) | (cone_spread > 0.0), 1.0, 0.0)
+
+    monkeypatch.setattr(gap_shadows, "shadow_transmittance", only_with_a_cone)
+    direct, everything = _floor_under_opaque_sheet(2), _floor_under_opaque_sheet(6)
+    assert direct > 0.0
+    assert everything == pytest.approx(direct, rel=1e-5)
+
+
 def test_opaque_surfaces_still_block_the_sun():
     """A diffuse sheet instead of cloth: no light reaches the floor (only the first
     crossing is tested for gaps, and a diffuse BSDF has none)."""

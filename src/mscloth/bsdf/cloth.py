@@ -1002,12 +1002,26 @@ def make_cloth_class():
             if self.multiscale:
                 fp = self._footprint(si, fr)
                 sats = self.footprint_data.scalar_sats
-                # Exact corners: stochastic rounding (one read per corner instead of four) is
-                # unbiased only before the clip below, which a nearly gap-free footprint
-                # needs (the rounded box can hold more yarn than the exact area): clipped,
-                # it let light through where there are no gaps (docs/decisions.md).
-                covered = sum(sats.integral(sats.query(*box), self.footprint_data.GAP) for box in fp["boxes"])
-                yarn = dr.select(fp["use"], covered / fp["area"], yarn)
+
+                def footprint_yarn():
+                    # Exact corners: stochastic rounding (one read per corner instead of
+                    # four) is unbiased only before the clip below, which a nearly gap-free
+                    # footprint needs (the rounded box can hold more yarn than the exact
+                    # area): clipped, it let light through where there are no gaps
+                    # (docs/decisions.md).
+                    covered = sum(sats.integral(sats.query(*box), self.footprint_data.GAP)
+                                  for box in fp["boxes"])
+                    return covered / fp["area"]
+
+                use = fp["use"] & active
+                if dr.is_jit_v(mi.Float):
+                    # A symbolic if: packets without a footprint (shadow rays from vertices
+                    # shaded at a point) skip the table reads. Widened as in _shade.
+                    use = use & dr.full(mi.Bool, True, dr.width((si, active)))
+                    yarn = dr.if_stmt(args=(), cond=use, true_fn=footprint_yarn,
+                                      false_fn=lambda: mi.Float(yarn), label="cloth_gap_footprint")
+                elif use:
+                    yarn = footprint_yarn()
             t_sheen = fr["t_sheen_i"]
             return dr.select(active & (dr.abs(si.wi.z) > spongecake.COS_EPSILON),
                              t_sheen * t_sheen * dr.clip(1.0 - yarn, 0.0, 1.0), 0.0)

@@ -33,7 +33,9 @@ the scene).
 * after a non-delta bounce (``scattered_footprints`` false, the default): a zero footprint,
   so BSDFs shade the hit point. The path's own random hit point then samples the cone's
   footprint, with the same expectation as shading it whole; the cone's filtering matters
-  along mirror, glass and gap chains (delta bounces), which keep it.
+  along mirror, glass and gap chains (delta bounces), which keep it. Shadow rays cross
+  cloth with the footprint of their vertex: the ray cone continued from the first hit and
+  along delta chains, a point after a rough bounce.
 
 Footprint convention: the footprint of a shading point is the axis-aligned UV rectangle
 centred on ``si.uv`` with half-widths 1/2 (|du/dx| + |du/dy|) and 1/2 (|dv/dx| + |dv/dy|).
@@ -310,10 +312,14 @@ def make_clothpath_class():
                 else:
                     si.duv_dx = c_dx
                     si.duv_dy = c_dy
+                shadow_w, shadow_spread = w_hit, cone_spread
                 if not scattered_footprints:
-                    # Only camera rays and their delta chains carry a footprint.
+                    # Only camera rays and their delta chains carry a footprint; shadow rays
+                    # from a vertex shaded at a point cross cloth at a point too.
                     si.duv_dx = dr.select(delta_chain, si.duv_dx, 0.0)
                     si.duv_dy = dr.select(delta_chain, si.duv_dy, 0.0)
+                    shadow_w = dr.select(delta_chain, w_hit, 0.0)
+                    shadow_spread = dr.select(delta_chain, cone_spread, 0.0)
                 if footprint_aovs:
                     record = first & si.is_valid()
                     h_u, h_v = fp.half_widths(si.duv_dx, si.duv_dy)
@@ -357,14 +363,14 @@ def make_clothpath_class():
                             for _ in range(1 if delta else n_em):
                                 ds, em_weight = emitter.sample_direction(si, sampler.next_2d(), active_em)
                                 em_samples.append(self._visible(scene, si, ds, em_weight, active_em,
-                                                                gaps, w_hit, cone_spread))
+                                                                gaps, shadow_w, shadow_spread))
                     else:
                         for _ in range(n_em):
                             # Visibility as Mitsuba tests it, plus gaps for delta emitters.
                             ds, em_weight = scene.sample_emitter_direction(si, sampler.next_2d(), False,
                                                                            active_em)
                             em_samples.append(self._visible(scene, si, ds, em_weight, active_em, gaps,
-                                                            w_hit, cone_spread))
+                                                            shadow_w, shadow_spread))
                 if not em_samples:
                     em_samples.append((None, None, False, mi.Vector3f(0.0)))
 
