@@ -190,6 +190,17 @@ def _max_channel(c):
     return dr.maximum(dr.maximum(c[0], c[1]), c[2])
 
 
+def _branch(cond, lanes_of, true_fn, false_fn, label):
+    """``dr.if_stmt`` on the per-lane ``cond``: a packet whose lanes all take one side skips
+    the other's work. In JIT variants ``cond`` is widened to the lanes of ``lanes_of`` first:
+    a footprint from constant si.duv_dx/dy (tests, calibration) and the evaluated parameters
+    is a single value, and Dr.Jit 1.5.0's if_stmt on a one-value condition that is not a
+    literal returns one-value outputs from wider inputs (and then fails to run)."""
+    if dr.is_jit_v(mi.Float):
+        cond = cond & dr.full(mi.Bool, True, dr.width(lanes_of))
+    return dr.if_stmt(args=(), cond=cond, true_fn=true_fn, false_fn=false_fn, label=label)
+
+
 def make_cloth_class():
     """Define the ``cloth`` BSDF class for the active Mitsuba variant."""
 
@@ -955,15 +966,8 @@ def make_cloth_class():
                 values, pdfs, record = self._point_branch(si, fr, enabled, wos, samples, active)
             else:
                 fp = self._footprint(si, fr)
-                use = fp["use"]
-                if dr.is_jit_v(mi.Float):
-                    # A footprint from constant si.duv_dx/dy (tests, calibration) and the
-                    # evaluated parameters is a single value: as wide as the lanes, since
-                    # Dr.Jit 1.5.0's if_stmt on a one-value condition that is not a literal
-                    # returns one-value outputs from wider inputs (and then fails to run).
-                    use = use & dr.full(mi.Bool, True, dr.width((si, wos, samples)))
-                values, pdfs, record = dr.if_stmt(
-                    args=(), cond=use,
+                values, pdfs, record = _branch(
+                    fp["use"], (si, wos, samples),
                     true_fn=lambda: self._footprint_branch(si, fr, enabled, wos, samples, active),
                     false_fn=lambda: self._point_branch(si, fr, enabled, wos, samples, active, fp),
                     label="cloth_footprint")
@@ -1013,15 +1017,11 @@ def make_cloth_class():
                                   for box in fp["boxes"])
                     return covered / fp["area"]
 
-                use = fp["use"] & active
-                if dr.is_jit_v(mi.Float):
-                    # A symbolic if: packets without a footprint (shadow rays from vertices
-                    # shaded at a point) skip the table reads. Widened as in _shade.
-                    use = use & dr.full(mi.Bool, True, dr.width((si, active)))
-                    yarn = dr.if_stmt(args=(), cond=use, true_fn=footprint_yarn,
-                                      false_fn=lambda: mi.Float(yarn), label="cloth_gap_footprint")
-                elif use:
-                    yarn = footprint_yarn()
+                # Packets without a footprint (shadow rays from vertices shaded at a point)
+                # skip the table reads.
+                texel_yarn = yarn
+                yarn = _branch(fp["use"] & active, (si, active), true_fn=footprint_yarn,
+                               false_fn=lambda: mi.Float(texel_yarn), label="cloth_gap_footprint")
             t_sheen = fr["t_sheen_i"]
             return dr.select(active & (dr.abs(si.wi.z) > spongecake.COS_EPSILON),
                              t_sheen * t_sheen * dr.clip(1.0 - yarn, 0.0, 1.0), 0.0)
