@@ -49,3 +49,21 @@ def test_bad_weights_are_refused():
         build_alias(np.array([[1.0, -1.0]]))
     with pytest.raises(ValueError, match="non-negative"):
         build_alias(np.ones(4))
+
+
+def test_thresholds_are_stored_in_16_bits_and_cells_are_limited():
+    """A cell's realised probability differs from its weight's share by the threshold's
+    16-bit rounding at most (half a step of 1/65535 of a cell's share, per cell it touches),
+    and rows of more than 2^16 cells (16-bit aliases) are refused."""
+    rng = np.random.default_rng(4)
+    w = rng.random((3, 500)) ** 4
+    table = AliasTable(w)
+    exact = w / w.sum(axis=1, keepdims=True)
+    # Each cell's probability gathers its own threshold and those of the cells aliasing it.
+    _, _, alias = build_alias(w)
+    touching = 1 + np.stack([np.bincount(a, minlength=500) for a in alias])
+    bound = touching * 0.5 / 65535 / 500 + 1e-12
+    assert np.all(np.abs(table.probabilities - exact) <= bound)
+    assert np.abs(table.probabilities - exact).max() > 0.0  # rounded, not stored exactly
+    with pytest.raises(ValueError, match="at most 65536 cells"):
+        AliasTable(np.ones((1, 65537)))

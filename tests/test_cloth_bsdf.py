@@ -297,6 +297,18 @@ def test_two_cloth_bsdfs_that_differ_in_parameters_run_as_one_callable():
     assert np.all(np.isfinite(values)) and not np.allclose(values[0::2], values[1::2])
 
 
+def test_cloth_bsdfs_with_the_same_fuzz_share_one_sheen_table():
+    """The sheen sampler's table is read-only and depends on the fuzz alone: BSDFs with the
+    same sheen_roughness and sheen_thickness read one table (its reads miss the cache
+    often; two copies doubled what they compete for), other fuzz gets its own."""
+    a = mi.load_dict(dict(CLOTH, multiscale=False))
+    b = mi.load_dict(dict(CLOTH, multiscale=False, roughness=0.2, sheen_color=0.3))
+    c = mi.load_dict(dict(CLOTH, multiscale=False, sheen_thickness=0.25))
+    assert a.sheen_sampler is b.sheen_sampler
+    assert c.sheen_sampler is not a.sheen_sampler
+    assert not np.allclose(c.sheen_sampler.density, a.sheen_sampler.density)
+
+
 def test_gap_transmission_of_a_footprint_is_its_exact_gap_fraction():
     """Shadow rays crossing multi-scale cloth see T_sheen^2 (1 - I) with I the yarn coverage
     of the footprint, read at exact (fractional) corners: the same at every shading point of

@@ -277,7 +277,7 @@ def make_cloth_class():
                 self.diffuse_sampler = sheen.FuzzCosineSampler(p.sheen_roughness, p.sheen_thickness)
             if dr.is_jit_v(mi.Float) and p.sheen_thickness > 0.0:
                 with dr.suspend_grad():
-                    self.sheen_sampler = sheen.TabulatedSheenSampler.build(p.sheen_roughness, p.sheen_thickness)
+                    self.sheen_sampler = sheen.TabulatedSheenSampler.shared(p.sheen_roughness, p.sheen_thickness)
             # Lobe selection matched to the lobes' albedos, and for footprints to the
             # footprint mixture's weights, measured once (JIT variants; scalar variants, for
             # unit tests, keep the uncalibrated proxies).

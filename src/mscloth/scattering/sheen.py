@@ -87,17 +87,21 @@ class TabulatedSheenSampler:
     """Samples the sheen lobe in proportion to a table of f_sheen |cos o| (JIT variants).
 
     The fuzz is isotropic about the normal, so f_sheen |cos o| depends on cos(theta_i),
-    cos(theta_o) and the azimuth between them. The table has one slice per band of
-    incident angles (``n_mu`` bands, uniform in sqrt(cos theta_i)), each a
+    cos(theta_o) and the azimuth between them, and only on its absolute value (the lobe is
+    its own mirror image across the plane of wi and the normal). The table has one slice per
+    band of incident angles (``n_mu`` bands, uniform in sqrt(cos theta_i)), each a
     piecewise-constant density on ``n_y`` x ``n_x`` cells of y = cos(theta_o) by
-    x = (phi_o - phi_i) / 2 pi (d omega = 2 pi dx dy), from the lobe at the cell centres for
-    the band's centre. Rows are uniform in sqrt(y) and bands in sqrt(cos theta_i): finest
-    at grazing angles, where the lobe changes fastest and the sheen dominates. ``sample``
-    picks a cell from the band's alias table (one read) and a uniform point in it; ``pdf``
-    is one table read. The weight f/pdf varies only inside a cell and across a band:
-    relative variance 0.0001-0.0011 from 20 to 89.5 degrees (alpha_s 0.5, T_s 0.3), against
-    0.014-0.19 for :class:`FoldedSheenSampler` (up to 34 at alpha_s 0.1, where the table
-    gives 0.0002-0.007). 2.3 MiB and ~0.1 s to build at the default sizes.
+    x = |phi_o - phi_i| / pi (a cell stands for itself and its mirror image: d omega =
+    2 pi dx dy over both), from the lobe at the cell centres for the band's centre. Rows are
+    uniform in sqrt(y) and bands in sqrt(cos theta_i): finest at grazing angles, where the
+    lobe changes fastest and the sheen dominates. ``sample`` picks a cell from the band's
+    alias table (one read), a side of the mirror with what is left of the uniform, and a
+    uniform point in the cell; ``pdf`` is one table read. The weight f/pdf varies only
+    inside a cell and across a band: relative variance 0.0001-0.0011 from 20 to 89.5 degrees
+    (alpha_s 0.5, T_s 0.3), against 0.014-0.19 for :class:`FoldedSheenSampler` (up to 34 at
+    alpha_s 0.1, where the table gives 0.0002-0.007). 768 KiB and ~0.1 s to build at the
+    default sizes; :meth:`shared` builds one table per sheen (BSDFs with the same fuzz read
+    the same memory: these reads are cache misses more often than not).
 
     A cosine floor (``FLOOR`` of the band's mean) keeps every upper direction reachable
     for a very peaked lobe (small alpha_s). Sampling stays exact whatever the table holds
@@ -105,16 +109,19 @@ class TabulatedSheenSampler:
     parameters only costs variance."""
 
     FLOOR = 0.01
+    _shared: dict = {}
 
     def __init__(self, values, n_mu: int, n_y: int, n_x: int):
         """``values``: (n_mu, n_y, n_x) non-negative cell values of f |cos o| (any scale per
-        band); row j spans y in [(j / n_y)^2, ((j + 1) / n_y)^2]."""
+        band); row j spans y in [(j / n_y)^2, ((j + 1) / n_y)^2], column i spans
+        |phi_o - phi_i| in [i pi / n_x, (i + 1) pi / n_x]."""
         values = np.asarray(values, dtype=np.float64)
         if values.shape != (n_mu, n_y, n_x) or not np.all(np.isfinite(values)) or np.any(values < 0.0):
             raise ValueError(f"TabulatedSheenSampler: expected finite non-negative values of shape "
                              f"{(n_mu, n_y, n_x)}, got shape {values.shape}")
         self.n_mu, self.n_y, self.n_x = n_mu, n_y, n_x
         edges = (np.arange(n_y + 1) / n_y) ** 2
+        # A cell and its mirror image: 2 (pi / n_x) in azimuth.
         solid_angle = (edges[1:] - edges[:-1])[None, :, None] * (2.0 * np.pi / n_x)
         mass = (values * solid_angle).reshape(n_mu, n_y * n_x)
         if np.any(mass.sum(axis=1) <= 0.0):
@@ -125,20 +132,29 @@ class TabulatedSheenSampler:
         self._density = flat_array(self.density)
 
     @classmethod
-    def build(cls, alpha_s, thickness_s, n_mu: int = 48, n_y: int = 64, n_x: int = 64):
+    def build(cls, alpha_s, thickness_s, n_mu: int = 48, n_y: int = 64, n_x: int = 32):
         mu = ((np.arange(n_mu) + 0.5) / n_mu) ** 2
         y = ((np.arange(n_y) + 0.5) / n_y) ** 2
         x = (np.arange(n_x) + 0.5) / n_x
         M, Y, X = np.meshgrid(mu, y, x, indexing="ij")
         sin_i = np.sqrt(1.0 - M * M).ravel()
         sin_o = np.sqrt(1.0 - Y * Y)
-        phi = 2.0 * np.pi * X
+        phi = np.pi * X
         wi = mi.Vector3f(*(lane_values(c) for c in (sin_i, np.zeros_like(sin_i), M)))
         wo = mi.Vector3f(*(lane_values(c) for c in (sin_o * np.cos(phi), sin_o * np.sin(phi), Y)))
         f_cos = np.asarray(eval_sheen(wi, wo, alpha_s, thickness_s), dtype=np.float64).reshape(M.shape)
         f_cos = np.where(np.isfinite(f_cos), np.maximum(f_cos, 0.0), 0.0)
         f_cos += cls.FLOOR * np.maximum(f_cos.mean(axis=(1, 2), keepdims=True), 1e-30) * Y
         return cls(f_cos, n_mu, n_y, n_x)
+
+    @classmethod
+    def shared(cls, alpha_s, thickness_s):
+        """:meth:`build` at the default sizes, one table per (variant, alpha_s, T_s): the
+        tables are read-only, so BSDFs with the same fuzz share one."""
+        key = (mi.variant(), float(alpha_s), float(thickness_s))
+        if key not in cls._shared:
+            cls._shared[key] = cls.build(alpha_s, thickness_s)
+        return cls._shared[key]
 
     def _band(self, wi):
         band = dr.floor(dr.sqrt(dr.maximum(wi.z, 0.0)) * self.n_mu)
@@ -159,7 +175,11 @@ class TabulatedSheenSampler:
         cell, v = self.cells.sample(k, u.x)
         iy = cell // self.n_x
         ix = cell - iy * self.n_x
-        x = (mi.Float(ix) + v) / self.n_x
+        # The side of the mirror from what is left of u.x (12 bits or more remain).
+        mirror = v >= 0.5
+        v = dr.select(mirror, 2.0 * v - 1.0, 2.0 * v)
+        x = (mi.Float(ix) + v) * (0.5 / self.n_x)
+        x = dr.select(mirror, -x, x)
         r0 = mi.Float(iy) / self.n_y
         r1 = r0 + 1.0 / self.n_y
         y = dr.lerp(r0 * r0, r1 * r1, u.y)  # uniform in y inside the cell
@@ -172,8 +192,7 @@ class TabulatedSheenSampler:
     def pdf(self, wi, wo):
         """Solid-angle density of :meth:`sample` (zero for wo below)."""
         c, s = self._azimuth_of(wi)
-        x = dr.atan2(c * wo.y - s * wo.x, c * wo.x + s * wo.y) * (0.5 * dr.inv_pi)
-        x = x - dr.floor(x)
+        x = dr.abs(dr.atan2(c * wo.y - s * wo.x, c * wo.x + s * wo.y)) * dr.inv_pi
         ix = mi.UInt32(dr.clip(dr.floor(x * self.n_x), 0, self.n_x - 1))
         iy = mi.UInt32(dr.clip(dr.floor(dr.safe_sqrt(wo.z) * self.n_y), 0, self.n_y - 1))
         above = wo.z > 0.0
