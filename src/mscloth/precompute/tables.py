@@ -217,7 +217,7 @@ def choose_direction_rank(height: int, width: int, dr: int, requested: int, max_
 
 
 def _params(roughness, dr=16, dv=8, clusters=8, per_cluster_sat=False, seed=0, iters=30,
-            max_step=0.5, vis_eps=1e-4, fast_visibility=False, d_rank=0, parallax=False) -> dict:
+            max_step=0.5, vis_eps=1e-4, fast_visibility=True, d_rank=0, parallax=False) -> dict:
     try:
         alpha = float(roughness)
     except (TypeError, ValueError):
@@ -287,7 +287,7 @@ def _sat_parallel(n_channels, H, W, produce, workers, progress_cb, chunk, out=No
 def build_tables(maps, roughness, dr: int = 16, dv: int = 8, clusters: int = 8,
                  per_cluster_sat: bool = False, progress: bool = True, *, seed: int = 0,
                  iters: int = 30, max_step: float = 0.5, vis_eps: float = 1e-4,
-                 fast_visibility: bool = False, d_rank: int = 0, parallax: bool = False,
+                 fast_visibility: bool = True, d_rank: int = 0, parallax: bool = False,
                  workers: int | None = None) -> MultiscaleTables:
     """Build every table of :class:`MultiscaleTables` for ``maps`` (a ClothMaps).
 
@@ -295,10 +295,11 @@ def build_tables(maps, roughness, dr: int = 16, dv: int = 8, clusters: int = 8,
     dv: direction bins per side of the visibility and parallax tables. clusters: k of the
     visibility k-means (<= 127). per_cluster_sat: also build d_sat_cluster (clusters x the
     memory of d_sat). progress: progress lines on stderr. seed, iters: k-means.
-    max_step: march step (texels). vis_eps: hit tolerance (texels). fast_visibility: march
-    only the first 16+ texels of each visibility ray sample by sample, then blocks (see
-    :func:`mscloth.precompute._march.escape_mask`; 3-8x faster, 0.02 % of entries differ on
-    the plain weave). d_rank: 0 for the full directional SAT (dr*dr channels), K > 0 for
+    max_step: march step (texels). vis_eps: hit tolerance (texels). fast_visibility (default):
+    march only the first 16+ texels of each visibility ray sample by sample, then blocks (see
+    :func:`mscloth.precompute._march.escape_mask`; 512^2 plain weave: front 2.6 s instead of
+    6.7 s, back 2.3 s instead of 15.5 s, 0.001 % / 0.02 % of entries differ); False: every
+    sample of every ray (docs/decisions.md). d_rank: 0 for the full directional SAT (dr*dr channels), K > 0 for
     its rank-K compression (K channels plus a dr*dr x K basis, see :func:`_d_basis`).
     parallax: also build the parallax table (a quarter of the build time and, at dr = 32, more
     memory than everything but the directional SAT; only the ``parallax`` option reads it).
@@ -360,20 +361,10 @@ def build_tables(maps, roughness, dr: int = 16, dv: int = 8, clusters: int = 8,
     bins = bin_centres(dr)
     B = len(bins)
     chunk = max(1, min(B, _D_CHUNK_BYTES // (8 * N)))
-    a2, c_alpha = alpha * alpha, alpha ** 3 / np.pi
 
     def produce_d(c0, c1, mask=None):
-        b = bins[c0:c1]
-        # Cosines h_b . t, (c, N); explicit sums beat a k=3 BLAS product by ~5x here.
-        c = np.multiply(b[:, 0, None], tangent_t[0])
-        c += b[:, 1, None] * tangent_t[1]
-        c += b[:, 2, None] * tangent_t[2]
-        np.square(c, out=c)
-        c *= 1.0 - a2
-        c += a2
-        np.square(c, out=c)
-        np.divide(c_alpha, c, out=c)
-        c *= gap if mask is None else gap * mask
+        weight = gap if mask is None else gap * mask
+        c = _d_times_gap(bins[c0:c1], tangent_t, weight, alpha)
         if mask is None:  # each chunk writes its own rows: safe from worker threads
             d_cluster_sum[c0:c1] = c @ cluster_columns
         return c.reshape(c1 - c0, H, W)
@@ -383,11 +374,23 @@ def build_tables(maps, roughness, dr: int = 16, dv: int = 8, clusters: int = 8,
     d_basis = coef = None
     if K:
         d_basis = _d_basis(bins, tangent, gap, alpha, K, seed)
-        coef = np.zeros((K, N))
-        for c0 in range(0, B, chunk):
-            c1 = min(B, c0 + chunk)
-            coef += d_basis[c0:c1].T @ produce_d(c0, c1).reshape(c1 - c0, N)
-            prog("building rank-%d directional SAT" % K, c1, B, "bins")
+        # The coefficients basis^T D, a slab of texels at a time over every bin: one
+        # (K x B) x (B x slab) product per slab. Bins at a time over every texel (as the full
+        # table goes) made each product a rank-4 update of the whole (K x N) coefficient
+        # array: 15 s of memory traffic at 512^2, dr = 32, against 3 s this way.
+        coef = np.empty((K, N))
+        slab = max(1, _D_CHUNK_BYTES // (8 * B))
+        slabs = [(t0, min(N, t0 + slab)) for t0 in range(0, N, slab)]
+
+        def coefficients(texels):
+            t0, t1 = texels
+            d = _d_times_gap(bins, tangent_t[:, t0:t1], gap[t0:t1], alpha)
+            coef[:, t0:t1] = d_basis.T @ d  # each slab writes its own columns
+            return d @ cluster_columns[t0:t1]
+
+        parts = map_ordered(coefficients, slabs, workers,
+                            lambda d, n: prog("building rank-%d directional SAT" % K, d, n, "texel slabs"))
+        d_cluster_sum = np.sum(parts, axis=0)
         d_sat, d_mean = build_sat(coef.reshape(K, H, W))
         d_basis = d_basis.astype(np.float32)
     else:
@@ -466,6 +469,23 @@ def build_tables(maps, roughness, dr: int = 16, dv: int = 8, clusters: int = 8,
     mib = sum(tables.memory_report().values()) / 2**20
     prog.note(f"tables built in {total:.2f} s, {mib:.1f} MiB")
     return tables
+
+
+def _d_times_gap(bins, tangent_t, weight, alpha):
+    """D(h_b, t(p)) weight(p) of a fibre SGGX of roughness ``alpha`` for the (c, 3) bin
+    centres h_b and the (3, n) tangents: (c, n), float64. Explicit sums over the three
+    components beat a k = 3 BLAS product by ~5x here."""
+    a2 = alpha * alpha
+    c = np.multiply(bins[:, 0, None], tangent_t[0])
+    c += bins[:, 1, None] * tangent_t[1]
+    c += bins[:, 2, None] * tangent_t[2]
+    np.square(c, out=c)
+    c *= 1.0 - a2
+    c += a2
+    np.square(c, out=c)
+    np.divide(alpha ** 3 / np.pi, c, out=c)
+    c *= weight
+    return c
 
 
 def _d_basis(bins, tangent, gap, alpha, K, seed, samples=8192):
