@@ -212,6 +212,60 @@ def cmd_compare(args) -> int:
     return 0
 
 
+def _size(size: int) -> str:
+    """A byte count in KiB below 1 MiB, in MiB above."""
+    return f"{size / 2**10:.1f} KiB" if size < 2**20 else f"{size / 2**20:.1f} MiB"
+
+
+def cmd_cache(args) -> int:
+    """List the cache (per kind, or every entry with --list), or remove entries (--clear,
+    optionally only those unused for --older-than days; --dry-run lists them instead)."""
+    from datetime import datetime
+
+    from .cache import cache_entries, default_cache_dir, remove_entries
+
+    older = args.older_than
+    if older is not None:
+        try:
+            older = float(older)
+        except ValueError:
+            older = float("nan")
+        if not (older >= 0.0 and older != float("inf")):
+            raise ClothError(f"--older-than must be a number of days >= 0, got {args.older_than!r}")
+        if not args.clear:
+            raise ClothError("--older-than only selects what --clear removes: add --clear")
+    root = default_cache_dir()
+    entries = cache_entries(root)
+    if args.clear:
+        if older is not None:
+            cutoff = time.time() - older * 86400.0
+            entries = [e for e in entries if e.last_used < cutoff]
+        what = f"{len(entries)} entries ({_size(sum(e.size for e in entries))})"
+        unused = f" unused for {older:g} days" if older is not None else ""
+        if args.dry_run:
+            for e in entries:
+                print(f"would remove {e.kind}: {', '.join(p.name for p in e.paths)}")
+            print(f"mscloth cache: would remove {what}{unused} from {root}")
+        else:
+            freed = remove_entries(entries)
+            print(f"mscloth cache: removed {len(entries)} entries{unused} ({_size(freed)}) from {root}")
+        return 0
+    print(f"mscloth cache: {root}" + ("" if root.is_dir() else " (not created yet)"))
+    if args.list:
+        for e in entries:
+            used = datetime.fromtimestamp(e.last_used).strftime("%Y-%m-%d %H:%M")
+            note = "  (an interrupted write)" if e.unfinished else ""
+            print(f"  {e.kind:13s} {e.name}  {_size(e.size):>11s}  last used {used}{note}")
+    kinds = {}
+    for e in entries:
+        count, size = kinds.get(e.kind, (0, 0))
+        kinds[e.kind] = (count + 1, size + e.size)
+    for kind, (count, size) in kinds.items():
+        print(f"  {kind:13s} {count:5d} entries  {_size(size):>11s}")
+    print(f"  {'total':13s} {len(entries):5d} entries  {_size(sum(e.size for e in entries)):>11s}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mscloth", description="Multi-scale cloth appearance for Mitsuba 3.")
     parser.add_argument("--version", action="version", version=f"mscloth {__version__}")
@@ -263,6 +317,14 @@ def build_parser() -> argparse.ArgumentParser:
     compare.add_argument("--reference-spp", default="1024", help="spp of the brute-force reference (default 1024)")
     compare.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
     compare.set_defaults(func=cmd_compare)
+
+    cache = sub.add_parser("cache", help="what the cache ($MSCLOTH_CACHE or ~/.cache/mscloth) holds; --clear empties it")
+    cache.add_argument("--list", action="store_true", help="one line per entry (kind, name, size, last use)")
+    cache.add_argument("--clear", action="store_true", help="remove mscloth's entries (other files are left alone)")
+    cache.add_argument("--older-than", default=None, metavar="DAYS",
+                       help="with --clear: only entries unused for DAYS days (a load marks an entry used)")
+    cache.add_argument("--dry-run", action="store_true", help="with --clear: list what would be removed")
+    cache.set_defaults(func=cmd_cache)
     return parser
 
 

@@ -62,6 +62,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
+from .cache import default_cache_dir, mark_used
 from .errors import ClothError
 
 REGIONS = ("near", "middle", "far")
@@ -326,8 +327,6 @@ def reference_key(name: str, width: int, height: int, spp: int) -> str:
 
 
 def reference_path(name: str, width: int, height: int, spp: int) -> Path:
-    from .precompute.tables import default_cache_dir
-
     key = reference_key(name, width, height, spp)
     return default_cache_dir() / "references" / f"{name}-{width}x{height}-{spp}spp-{key[:16]}.npz"
 
@@ -389,6 +388,7 @@ def reference_image(name: str, width: int, height: int, spp: int = 1024, quiet: 
     if path.exists():
         try:
             image, variance = _load_reference(path, key, shape)
+            mark_used(path)  # for `mscloth cache --clear --older-than`
             if not quiet:
                 print(f"reference: cached {path}", flush=True)
             return image, variance, True

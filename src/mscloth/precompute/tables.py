@@ -39,7 +39,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import time
 import warnings
 import zipfile
@@ -49,6 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import atomic_write
+from ..cache import default_cache_dir, mark_used
 from ..errors import ParameterError
 from ._util import Progress, map_ordered, texel_pitch
 from .direction_bins import bilinear_bins, bin_centres, fold_upper, hemisphere_to_square
@@ -533,12 +533,6 @@ def _expected_shapes(params: dict, shape) -> dict:
 
 
 # ---------------------------------------------------------------------------- cache
-def default_cache_dir() -> Path:
-    """$MSCLOTH_CACHE, else ~/.cache/mscloth."""
-    env = os.environ.get("MSCLOTH_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "mscloth"
-
-
 def _sha256(a: np.ndarray) -> str:
     return hashlib.sha256(memoryview(np.ascontiguousarray(a)).cast("B")).hexdigest()
 
@@ -641,7 +635,9 @@ def load_or_build(maps, roughness, cache_dir=None, **kw) -> MultiscaleTables:
     shape = tuple(int(s) for s in maps.tangent.shape[:2])
     if npz_path.exists() or json_path.exists():
         try:
-            return load_tables(cache_dir, key, params, shape)
+            tables = load_tables(cache_dir, key, params, shape)
+            mark_used(npz_path, json_path)  # for `mscloth cache --clear --older-than`
+            return tables
         except _BadCache as bad:
             warnings.warn(f"mscloth: ignoring cached tables {bad.path}: {bad.reason}; "
                           "rebuilding", RuntimeWarning, stacklevel=2)

@@ -75,7 +75,7 @@ def sphere_scene(width: int = 512, height: int = 288) -> dict:
 def drape_scene(width: int = 512, height: int = 288, mesh_dir: str | os.PathLike | None = None) -> dict:
     """Woven and knitted cloth draped over two spheres, lit from behind so light passes
     through the gaps between yarns."""
-    from ..precompute.tables import default_cache_dir
+    from ..cache import default_cache_dir
 
     mesh_dir = Path(mesh_dir) if mesh_dir is not None else default_cache_dir() / "scenes"
     mesh_dir.mkdir(parents=True, exist_ok=True)

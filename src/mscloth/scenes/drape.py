@@ -52,12 +52,15 @@ def drape_ply(directory, **kw) -> str:
     import os
 
     from ..atomic import atomic_path
+    from ..cache import mark_used
 
     key = hashlib.sha256(repr(sorted(kw.items())).encode()).hexdigest()[:12]
     path = os.path.join(str(directory), f"drape-{key}.ply")
     if not os.path.exists(path):
         with atomic_path(path) as tmp:
             drape_mesh(**kw).write_ply(tmp)
+    else:
+        mark_used(path)  # for `mscloth cache --clear --older-than`
     return path
 
 

@@ -1,0 +1,107 @@
+"""mscloth's on-disk cache: where it is, what is in it, and removing entries.
+
+``$MSCLOTH_CACHE``, else ``~/.cache/mscloth``, holds what mscloth can always make again:
+multi-scale tables (``tables-<key>.npz`` and its ``.json`` sidecar), the brute-force
+references of ``mscloth compare`` (``references/``) and the meshes of built-in scenes
+(``scenes/``). Their keys change with the maps, the parameters and (references) the code,
+so entries nothing reads any more pile up: one 512² tile's full directional SAT is 1 GiB.
+
+A load marks an entry as used (its files' modification time), so
+``mscloth cache --clear --older-than DAYS`` removes what has not been used for that long.
+Only files named the way mscloth names them are listed or removed (and the leftovers of
+writes that were killed half-way); anything else in the directory is left alone.
+"""
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+__all__ = ["CacheEntry", "cache_entries", "default_cache_dir", "mark_used", "remove_entries"]
+
+
+def default_cache_dir() -> Path:
+    """$MSCLOTH_CACHE, else ~/.cache/mscloth."""
+    env = os.environ.get("MSCLOTH_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "mscloth"
+
+
+# (kind, sub-directory, entry name pattern, file suffixes). A table's .npz and .json make
+# one entry. Atomic writes (mscloth.atomic) go through ".<stem>.<8 random characters><suffix>"
+# temporaries beside the target, left behind only by a killed process.
+_KINDS = (
+    ("tables", "", r"tables-[0-9a-f]{64}", (".npz", ".json")),
+    ("references", "references", r"[a-z0-9_]+-\d+x\d+-\d+spp-[0-9a-f]{16}", (".npz",)),
+    ("scene meshes", "scenes", r"[a-z0-9_]+-[0-9a-f]{12}", (".ply",)),
+)
+
+
+@dataclass(frozen=True)
+class CacheEntry:
+    """One cached item: its kind, name (the file stem), files, bytes, and when it was last
+    used (the newest modification time of its files, seconds since the epoch)."""
+
+    kind: str
+    name: str
+    paths: tuple[Path, ...]
+    size: int
+    last_used: float
+    unfinished: bool = False  # a temporary of an interrupted write
+
+
+def _match(pattern: str, suffixes: tuple[str, ...], filename: str):
+    """(stem, unfinished?) if ``filename`` is an entry file of this kind, else None."""
+    ext = "|".join(re.escape(s) for s in suffixes)
+    done = re.fullmatch(rf"({pattern})({ext})", filename)
+    if done:
+        return done.group(1), False
+    temporary = re.fullmatch(rf"\.({pattern})\.[a-z0-9_]{{8}}({ext})", filename)
+    if temporary:
+        return temporary.group(1), True
+    return None
+
+
+def cache_entries(cache_dir=None) -> list[CacheEntry]:
+    """Every mscloth entry in ``cache_dir`` (default: :func:`default_cache_dir`), by kind
+    then name; an empty list when the directory does not exist."""
+    root = default_cache_dir() if cache_dir is None else Path(cache_dir)
+    entries = []
+    for kind, sub, pattern, suffixes in _KINDS:
+        directory = root / sub if sub else root
+        if not directory.is_dir():
+            continue
+        groups: dict[tuple[str, bool], list[Path]] = {}
+        for path in sorted(directory.iterdir()):
+            found = _match(pattern, suffixes, path.name)
+            if found is not None and path.is_file():
+                groups.setdefault(found, []).append(path)
+        for (name, unfinished), paths in sorted(groups.items()):
+            stats = [p.stat() for p in paths]
+            entries.append(CacheEntry(kind, name, tuple(paths), sum(s.st_size for s in stats),
+                                      max(s.st_mtime for s in stats), unfinished))
+    return entries
+
+
+def remove_entries(entries) -> int:
+    """Delete the entries' files (those already gone are skipped); return the bytes freed."""
+    freed = 0
+    for entry in entries:
+        for path in entry.paths:
+            try:
+                size = path.stat().st_size
+                path.unlink()
+            except FileNotFoundError:
+                continue
+            freed += size
+    return freed
+
+
+def mark_used(*paths) -> None:
+    """Set the files' modification time to now: the entry was just used. A read-only cache
+    is fine (nothing to do then)."""
+    for path in paths:
+        try:
+            os.utime(path)
+        except OSError:
+            pass

@@ -1,0 +1,108 @@
+"""The on-disk cache (mscloth/cache.py) and `mscloth cache`: what it lists, what it removes
+(mscloth's files only), and that loads mark entries as used."""
+import os
+import re
+import time
+
+import numpy as np
+import pytest
+
+from mscloth.cache import cache_entries, mark_used, remove_entries
+from mscloth.cli import main
+
+KEY = "ab" * 32
+
+
+def _write(path, size, age_days=0.0):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(b"x" * size)
+    stamp = time.time() - age_days * 86400.0
+    os.utime(path, (stamp, stamp))
+    return path
+
+
+@pytest.fixture
+def cache_dir(tmp_path, monkeypatch):
+    root = tmp_path / "cache"
+    monkeypatch.setenv("MSCLOTH_CACHE", str(root))
+    _write(root / f"tables-{KEY}.npz", 1000, age_days=40)
+    _write(root / f"tables-{KEY}.json", 10, age_days=40)
+    _write(root / f"tables-{'cd' * 32}.npz", 500, age_days=1)  # its sidecar never written
+    _write(root / f".tables-{'ef' * 32}.a1b2c3d4.npz", 300, age_days=50)  # a killed write
+    _write(root / "references" / f"plane-320x180-1024spp-{'0' * 16}.npz", 200, age_days=10)
+    _write(root / "scenes" / f"drape-{'1' * 12}.ply", 100, age_days=60)
+    # Not mscloth's: names it does not write, and a user's own files.
+    for name in ("notes.txt", "tables-mine.npz", f"tables-{KEY}.npz.bak", "references/keep.npz",
+                 "scenes/my-scene.ply"):
+        _write(root / name, 7, age_days=100)
+    return root
+
+
+def test_entries_are_mscloth_files_grouped_by_item(cache_dir):
+    entries = cache_entries(cache_dir)
+    by_name = {e.name: e for e in entries}
+    assert sorted((e.kind, e.size, e.unfinished) for e in entries) == [
+        ("references", 200, False), ("scene meshes", 100, False),
+        ("tables", 300, True), ("tables", 500, False), ("tables", 1010, False)]
+    table = by_name[f"tables-{KEY}"]
+    assert {p.name for p in table.paths} == {f"tables-{KEY}.npz", f"tables-{KEY}.json"}
+    assert abs(table.last_used - (time.time() - 40 * 86400)) < 60
+    assert cache_entries(cache_dir / "nowhere") == []
+
+
+def test_clear_removes_only_mscloth_files(cache_dir, capsys):
+    assert main(["cache", "--clear", "--dry-run"]) == 0
+    assert "would remove 5 entries" in capsys.readouterr().out
+    assert len(cache_entries(cache_dir)) == 5  # a dry run removes nothing
+    assert main(["cache", "--clear"]) == 0
+    assert "removed 5 entries" in capsys.readouterr().out
+    left = sorted(str(p.relative_to(cache_dir)) for p in cache_dir.rglob("*") if p.is_file())
+    assert left == sorted(["notes.txt", "tables-mine.npz", f"tables-{KEY}.npz.bak", "references/keep.npz",
+                           "scenes/my-scene.ply"])
+
+
+def test_clear_older_than_keeps_recently_used_entries(cache_dir, capsys):
+    mark_used(*cache_entries(cache_dir)[-1].paths)  # the scene mesh (60 days old) was just used
+    assert main(["cache", "--clear", "--older-than", "30"]) == 0
+    assert "removed 2 entries unused for 30 days" in capsys.readouterr().out
+    assert sorted(e.size for e in cache_entries(cache_dir)) == [100, 200, 500]
+
+
+def test_listing_and_bad_arguments(cache_dir, capsys):
+    assert main(["cache", "--list"]) == 0
+    out = capsys.readouterr().out
+    assert str(cache_dir) in out and f"tables-{KEY}" in out and "an interrupted write" in out
+    assert re.search(r"total\s+5 entries\s+2\.1 KiB", out), out
+    for bad in (["cache", "--clear", "--older-than", "-1"], ["cache", "--clear", "--older-than", "soon"],
+                ["cache", "--older-than", "3"]):
+        assert main(bad) == 2
+        assert "--older-than" in capsys.readouterr().err
+    assert len(cache_entries(cache_dir)) == 5
+
+
+def test_remove_entries_skips_files_already_gone(cache_dir):
+    entries = cache_entries(cache_dir)
+    gone = entries[0].paths[0]
+    size = gone.stat().st_size
+    gone.unlink()
+    assert remove_entries(entries) == sum(e.size for e in entries) - size
+    assert cache_entries(cache_dir) == []
+
+
+def test_loading_cached_tables_marks_them_used(tmp_path):
+    """A load refreshes the entry's time, so --older-than removes what nothing reads."""
+    from mscloth.maps.woven import woven_maps
+    from mscloth.patterns.weaves import plain
+    from mscloth.precompute.tables import load_or_build
+
+    maps = woven_maps(plain(), 16)
+    kw = dict(dr=2, dv=2, clusters=2, progress=False)
+    load_or_build(maps, 0.3, cache_dir=tmp_path, **kw)
+    (entry,) = cache_entries(tmp_path)
+    old = time.time() - 90 * 86400.0
+    for path in entry.paths:
+        os.utime(path, (old, old))
+    tables = load_or_build(maps, 0.3, cache_dir=tmp_path, **kw)
+    (entry,) = cache_entries(tmp_path)
+    assert entry.last_used > time.time() - 3600 and tables.key in entry.name
+    assert np.all(np.isfinite(tables.d_sat))
