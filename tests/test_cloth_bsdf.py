@@ -307,6 +307,13 @@ def test_cloth_bsdfs_with_the_same_fuzz_share_one_sheen_table():
     assert a.sheen_sampler is b.sheen_sampler
     assert c.sheen_sampler is not a.sheen_sampler
     assert not np.allclose(c.sheen_sampler.density, a.sheen_sampler.density)
+    # The tables are held by the BSDFs alone: the last one gone, its table goes too.
+    import gc
+    import weakref
+    table = weakref.ref(c.sheen_sampler)
+    del c
+    gc.collect()
+    assert table() is None
 
 
 def test_gap_transmission_of_a_footprint_is_its_exact_gap_fraction():

@@ -17,6 +17,8 @@ through the fuzz, |cos o| T_sheen(o).
 """
 from __future__ import annotations
 
+import weakref
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -109,7 +111,8 @@ class TabulatedSheenSampler:
     parameters only costs variance."""
 
     FLOOR = 0.01
-    _shared: dict = {}
+    # Tables in use, by (variant, alpha_s, T_s): weak, so a table goes with its last BSDF.
+    _shared = weakref.WeakValueDictionary()
 
     def __init__(self, values, n_mu: int, n_y: int, n_x: int):
         """``values``: (n_mu, n_y, n_x) non-negative cell values of f |cos o| (any scale per
@@ -152,9 +155,10 @@ class TabulatedSheenSampler:
         """:meth:`build` at the default sizes, one table per (variant, alpha_s, T_s): the
         tables are read-only, so BSDFs with the same fuzz share one."""
         key = (mi.variant(), float(alpha_s), float(thickness_s))
-        if key not in cls._shared:
-            cls._shared[key] = cls.build(alpha_s, thickness_s)
-        return cls._shared[key]
+        sampler = cls._shared.get(key)
+        if sampler is None:
+            sampler = cls._shared[key] = cls.build(alpha_s, thickness_s)
+        return sampler
 
     def _band(self, wi):
         band = dr.floor(dr.sqrt(dr.maximum(wi.z, 0.0)) * self.n_mu)
