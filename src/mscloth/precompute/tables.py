@@ -299,8 +299,9 @@ def build_tables(maps, roughness, dr: int = 16, dv: int = 8, clusters: int = 8,
     march only the first 16+ texels of each visibility ray sample by sample, then blocks (see
     :func:`mscloth.precompute._march.escape_mask`; 512^2 plain weave: front 2.6 s instead of
     6.7 s, back 2.3 s instead of 15.5 s, 0.001 % / 0.02 % of entries differ); False: every
-    sample of every ray (docs/decisions.md). d_rank: 0 for the full directional SAT (dr*dr channels), K > 0 for
-    its rank-K compression (K channels plus a dr*dr x K basis, see :func:`_d_basis`).
+    sample of every ray (docs/decisions.md). d_rank: 0 for the full directional SAT (dr*dr
+    channels), K > 0 for its rank-K compression (K channels plus a dr*dr x K basis, see
+    :func:`_d_basis`).
     parallax: also build the parallax table (a quarter of the build time and, at dr = 32, more
     memory than everything but the directional SAT; only the ``parallax`` option reads it).
     workers: threads (default: CPUs, <= 8).
@@ -377,7 +378,8 @@ def build_tables(maps, roughness, dr: int = 16, dv: int = 8, clusters: int = 8,
         # The coefficients basis^T D, a slab of texels at a time over every bin: one
         # (K x B) x (B x slab) product per slab. Bins at a time over every texel (as the full
         # table goes) made each product a rank-4 update of the whole (K x N) coefficient
-        # array: 15 s of memory traffic at 512^2, dr = 32, against 3 s this way.
+        # array: 15 s of memory traffic at 512^2, dr = 32 and K = 64; 5 s this way, basis
+        # included.
         coef = np.empty((K, N))
         slab = max(1, _D_CHUNK_BYTES // (8 * B))
         slabs = [(t0, min(N, t0 + slab)) for t0 in range(0, N, slab)]
