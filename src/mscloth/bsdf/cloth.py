@@ -809,11 +809,14 @@ def make_cloth_class():
             v0, v1 = mi.sample_tea_32(a, b)
             v2, v3 = mi.sample_tea_32(v0, v1)
 
+            def unit24(v):  # 24 bits -> [0, 1)
+                return mi.Float(v) * (1.0 / 16777216.0)
+
             def unit(v):  # the top 24 bits -> [0, 1)
-                return mi.Float(v >> 8) * (1.0 / 16777216.0)
+                return unit24(v >> 8)
 
             low = ((v0 & 255) << 16) | ((v1 & 255) << 8) | (v2 & 255)  # 24 bits
-            return mi.Point2f(unit(v0), unit(v1)), mi.Point2f(unit(v2), unit(v3)), mi.Float(low) * (1.0 / 16777216.0)
+            return mi.Point2f(unit(v0), unit(v1)), mi.Point2f(unit(v2), unit(v3)), unit24(low)
 
         def _mirror(self, fr, wo):
             return mi.Vector3f(wo.x, wo.y, fr["sign"] * wo.z)
