@@ -240,12 +240,12 @@ def cmd_cache(args) -> int:
         if older is not None:
             cutoff = time.time() - older * 86400.0
             entries = [e for e in entries if e.last_used < cutoff]
-        what = f"{len(entries)} entries ({_size(sum(e.size for e in entries))})"
         unused = f" unused for {older:g} days" if older is not None else ""
         if args.dry_run:
             for e in entries:
                 print(f"would remove {e.kind}: {', '.join(p.name for p in e.paths)}")
-            print(f"mscloth cache: would remove {what}{unused} from {root}")
+            size = _size(sum(e.size for e in entries))
+            print(f"mscloth cache: would remove {len(entries)} entries ({size}){unused} from {root}")
         else:
             freed = remove_entries(entries)
             print(f"mscloth cache: removed {len(entries)} entries{unused} ({_size(freed)}) from {root}")
