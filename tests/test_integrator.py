@@ -211,6 +211,9 @@ def test_invalid_parameters():
     for bad in (0, 257, 2.5):
         with pytest.raises(Exception, match='"emitter_samples" must be an integer in'):
             mi.load_dict({"type": "clothpath", "emitter_samples": bad})
+    for name in ("gap_shadows", "scattered_footprints", "footprint_aovs"):
+        with pytest.raises(Exception, match=f'"{name}" must be a boolean'):
+            mi.load_dict({"type": "clothpath", name: "yes"})
 
 
 def test_registration_is_idempotent():
@@ -706,13 +709,13 @@ def test_footprint_bsdfs_see_the_pixel_centre_at_the_first_hit(camera):
 # Shadow rays through the gaps of cloth (delta emitters)
 # ----------------------------------------------------------------------------------------
 
-def _floor_under_cloth(cloth_bsdf, spp=64, seed=0):
+def _floor_under_cloth(cloth_bsdf, spp=64, seed=0, **integrator):
     """A diffuse floor seen from the side, lit by a sun straight above through a cloth
     sheet (or nothing) one unit higher; max_depth 2: the floor's direct light only."""
     import mscloth
 
     mscloth.register()
-    scene = {"type": "scene", "integrator": {"type": "clothpath", "max_depth": 2},
+    scene = {"type": "scene", "integrator": {"type": "clothpath", "max_depth": 2, **integrator},
              "sensor": {"type": "perspective", "fov": 20,
                         "to_world": mi.ScalarTransform4f().look_at(origin=[0, -8, 0.5], target=[0, 0, 0], up=[0, 0, 1]),
                         "film": {"type": "hdrfilm", "width": 32, "height": 32, "rfilter": {"type": "box"}}},
@@ -785,6 +788,17 @@ def test_shadow_rays_from_point_shaded_vertices_cross_cloth_at_a_point(monkeypat
     direct, everything = _floor_under_opaque_sheet(2), _floor_under_opaque_sheet(6)
     assert direct > 0.0
     assert everything == pytest.approx(direct, rel=1e-5)
+
+
+@pytest.mark.parametrize("multiscale", [True, False])
+def test_gap_shadows_off_makes_cloth_block_the_sun(multiscale):
+    """``gap_shadows`` false: the sheet that lets the sun through its gaps (the test above)
+    blocks it like any surface, and the floor under it gets nothing."""
+    cloth = {"type": "cloth", "pattern": "plain", "uv_scale": 40.0, "multiscale": multiscale}
+    through, _ = _floor_under_cloth(cloth, spp=4)
+    blocked, _ = _floor_under_cloth(cloth, spp=4, gap_shadows=False)
+    assert through > 0.0
+    assert blocked == 0.0
 
 
 def test_opaque_surfaces_still_block_the_sun():

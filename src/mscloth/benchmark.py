@@ -68,6 +68,8 @@ def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple]:
         f"cloth (multi-scale, direction_rank {BENCH_RANK})": {"direction_rank": BENCH_RANK},
         # What the height field's shadowing and masking cost (half of a footprint evaluation).
         "cloth (multi-scale, visibility off)": {"visibility": False},
+        # What the sun's shadow rays through the gaps cost (a crossing every other sample).
+        "cloth (multi-scale, gap_shadows off)": {"integrator": {"gap_shadows": False}},
         "cloth (mscloth, fibre-level)": {"multiscale": False},
         **MITSUBA_CONTENDERS,
         "diffuse (Mitsuba)": {"type": "diffuse"},
@@ -405,7 +407,9 @@ def write_results(path: Path, command: str, variant: str, cost_rows, cost_setup,
         "",
         "All renders use the `clothpath` integrator (it hands BSDFs their pixel footprints:",
         "the whole pixel on camera rays and their delta chains; after a rough bounce the hit",
-        "point, unless `scattered_footprints` keeps the ray cones there).",
+        "point, unless `scattered_footprints` keeps the ray cones there). `gap_shadows off`:",
+        "the sun's shadow rays stop at cloth as they stop at principled's surfaces (no sunlight",
+        "through the weave); its difference to the first row is what crossing the cloth costs.",
         "Target (issue 4/5): multi-scale `cloth` at most 2x `principled`.",
         "",
     ]

@@ -85,14 +85,22 @@ centred on ``si.uv`` with half-widths 1/2 (|du/dx| + |du/dy|) and 1/2 (|dv/dx| +
        lighting noise of an environment at the cost of shadow rays and BSDF evaluations,
        which footprint BSDFs share per shading point; the texture noise of a fibre-level
        BSDF needs pixel samples instead.
+   * - gap_shadows
+     - boolean
+     - true
+     - Shadow rays towards delta emitters (a sun, a point light) cross cloth through its
+       gaps (:mod:`mscloth.integrators.gap_shadows`), the only way such light reaches what
+       lies behind cloth. Off, cloth blocks them like any surface: faster where many
+       shadow rays meet cloth (the demo scene: a crossing every other sample; ``make
+       bench`` measures it), but the sunlight through the weave, on the floor under a
+       sheet or inside a cloth-covered object, is lost. Other emitters are reached
+       through gaps by BSDF sampling either way.
 
 AOVs ``footprint_u`` and ``footprint_v``: the footprint half-widths in UV at the first hit
 (0 where the camera ray escapes), e.g. ``footprint_u`` = 1/(2N) for a UV square seen
 head-on across N pixels; ``footprint_texels_u``, ``footprint_texels_v``: the footprint's full
 widths in texels of the BSDF's pattern tile (BSDFs with ``footprint_texels``, i.e. ``cloth``;
-0 elsewhere). Shadow rays towards delta emitters (a sun) cross cloth through
-its gaps (:mod:`mscloth.integrators.gap_shadows`); other emitters are reached through gaps
-by BSDF sampling.
+0 elsewhere).
 """
 
 _UINT32_MAX = 0xFFFFFFFF
@@ -203,6 +211,10 @@ def make_clothpath_class():
             if not isinstance(self.scattered_footprints, bool):
                 raise ValueError('clothpath: "scattered_footprints" must be a boolean, '
                                  f"got {self.scattered_footprints!r}")
+            self.gap_shadows = props.get("gap_shadows", True)
+            if not isinstance(self.gap_shadows, bool):
+                raise ValueError('clothpath: "gap_shadows" must be a boolean, '
+                                 f"got {self.gap_shadows!r}")
 
         def aov_names(self):
             return list(AOV_NAMES) if self.footprint_aovs else []
@@ -213,7 +225,8 @@ def make_clothpath_class():
                     f"hide_emitters = {self.hide_emitters}, "
                     f"emitter_sampling = {self.emitter_sampling}, "
                     f"emitter_samples = {self.emitter_samples}, "
-                    f"scattered_footprints = {self.scattered_footprints}]")
+                    f"scattered_footprints = {self.scattered_footprints}, "
+                    f"gap_shadows = {self.gap_shadows}]")
 
         def sample(self, scene, sampler, ray, medium=None, active=True):
             if self.max_depth == 0:
@@ -268,7 +281,7 @@ def make_clothpath_class():
                 emitters = [e for e in emitters if not _is_uniform(e)]
             all_emitters = self.emitter_sampling == "all" and (len(emitters) > 1 or env_by_bsdf)
             n_em = self.emitter_samples
-            gaps = gap_shadows.has_gap_transmission(scene)
+            gaps = self.gap_shadows and gap_shadows.has_gap_transmission(scene)
             # Offsets of camera samples from their pixel centres (perspective and
             # orthographic cameras), for footprint-shading BSDFs.
             centring = fp.pixel_centring(scene, ray_d) if has_diff else None
