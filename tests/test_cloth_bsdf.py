@@ -316,30 +316,63 @@ def test_cloth_bsdfs_with_the_same_fuzz_share_one_sheen_table():
     assert table() is None
 
 
-def test_gap_transmission_of_a_footprint_is_its_exact_gap_fraction():
-    """Shadow rays crossing multi-scale cloth see T_sheen^2 (1 - I) with I the yarn coverage
-    of the footprint, read at exact (fractional) corners: the same at every shading point of
-    the footprint. Stochastic rounding of the corners, unbiased alone, is not used here: the
-    clip of 1 - I to [0, 1] (a rounded box can hold more yarn than the exact area) biased a
-    gap-free footprint of 2.3 texels to 0.09 instead of 0."""
+def _exact_yarn(bsdf, x0, y0, x1, y1):
+    """Yarn coverage I over the texel rectangle [x0, x1] x [y0, y1] (fractional corners:
+    the exact integral, bilinear corner reads)."""
+    sats = bsdf.footprint_data.scalar_sats
+    q = sats.query(mi.Float(x0), mi.Float(y0), mi.Float(x1), mi.Float(y1))
+    return np.array(sats.integral(q, bsdf.footprint_data.GAP)) / ((x1 - x0) * (y1 - y0))
+
+
+def test_gap_transmission_of_a_footprint_is_its_gap_lobe():
+    """Shadow rays crossing multi-scale cloth see T_sheen^2 (1 - I), I the yarn coverage of
+    the footprint over the box the footprint BSDF shades (its corners rounded to whole
+    texels by the shading point's hash): at every lane exactly the BSDF's own gap lobe, in
+    [0, T_sheen^2], zero for a gap-free footprint (dividing the rounded box's yarn by the
+    exact area, then clipping, gave a gap-free 2.3-texel footprint 0.09), and over the
+    random roundings the exact footprint's fraction."""
     bsdf = mi.load_dict(dict(CLOTH, visibility=False))
-    fd = bsdf.footprint_data
-    sats = fd.scalar_sats
-    n = 64
+    n = 256
     rng = np.random.default_rng(9)
     su, sv = (float(np.array(getattr(bsdf, k))[0]) for k in ("uv_scale", "uv_scale_v"))
-    for width, (u, v) in ((2.3, (0.137, 0.71)), (9.6, (0.52, 0.05)), (41.0, (0.9, 0.33))):
-        si = make_si(vec(np.repeat([[0.0, 0.0, 1.0]], n, axis=0)), mi.Point2f(u, v), n)
+    W, H = bsdf.tile_w, bsdf.tile_h
+    # A gap-free spot: a texel whose 7 x 5 neighbourhood is all yarn (what a 2.3 x 1.6
+    # texel box, rounded either way, can reach).
+    ix, iy = np.meshgrid(np.arange(W), np.arange(H))
+    texel = _exact_yarn(bsdf, ix.ravel(), iy.ravel(), ix.ravel() + 1.0, iy.ravel() + 1.0).reshape(H, W)
+    full = np.ones_like(texel, dtype=bool)
+    for dy in range(-2, 3):
+        for dx in range(-3, 4):
+            full &= np.roll(texel, (-dy, -dx), axis=(0, 1)) > 1.0 - 1e-5
+    gy, gx = np.argwhere(full)[0]
+    # Then boxes across a gap's edge (wrapping in y), across a gap, and over tiles' corners.
+    cases = ((2.3, ((gx + 0.5) / (su * W), (gy + 0.5) / (sv * H)), True),
+             (2.3, (58.3 / (su * W), 0.5 / (sv * H)), False), (9.6, (0.52, 0.05), False),
+             (41.0, (0.5 / (su * W), 0.5 / (sv * H)), False))
+    for width, (u, v), gap_free in cases:
+        si = make_si(vec(np.repeat([[0.3, 0.1, 0.95]], n, axis=0) / np.linalg.norm([0.3, 0.1, 0.95])),
+                     mi.Point2f(float(u), float(v)), n)
         si.p = mi.Point3f(*(mi.Float(rng.random(n)) for _ in range(3)))
-        si.duv_dx = mi.Vector2f(width / bsdf.tile_w, 0.0)
-        si.duv_dy = mi.Vector2f(0.0, 0.7 * width / bsdf.tile_h)
+        si.duv_dx = mi.Vector2f(width / (su * W), 0.0)
+        si.duv_dy = mi.Vector2f(0.0, 0.7 * width / (sv * H))
         got = np.array(bsdf.gap_transmission(si))
-        x, y = u * su * bsdf.tile_w, v * sv * bsdf.tile_h
-        rx, ry = 0.5 * width * su, 0.35 * width * sv
-        q = sats.query(mi.Float(x - rx), mi.Float(y - ry), mi.Float(x + rx), mi.Float(y + ry))
-        yarn = float(np.array(sats.integral(q, fd.GAP))[0]) / (4.0 * rx * ry)
-        t = float(np.array(bsdf._frame(si, True)["t_sheen_i"])[0])
-        np.testing.assert_allclose(got, t * t * np.clip(1.0 - yarn, 0.0, 1.0), rtol=1e-5, atol=1e-6)
+        fr = bsdf._frame(si, True)
+        t2 = float(np.array(fr["t_sheen_i"])[0]) ** 2
+        lobe = np.array(bsdf._footprint_state(si, fr, [True] * 6)["yarn_mean"])
+        np.testing.assert_allclose(got, t2 * (1.0 - lobe), rtol=1e-5, atol=1e-7)
+        assert np.all((got >= 0.0) & (got <= t2 * (1.0 + 1e-6)))
+        if gap_free:
+            assert np.all(got == 0.0), got.max()
+            continue
+        x, y = u * su * W, v * sv * H
+        rx, ry = 0.5 * width, 0.35 * width
+        exact = t2 * (1.0 - _exact_yarn(bsdf, x - rx, y - ry, x + rx, y + ry)[0])
+        # The rounded box moves each edge by under a texel: the lanes scatter by that much
+        # around the exact fraction, and their mean meets it within 5 standard errors plus
+        # a ratio bias (mean of a ratio of the box's yarn to its random area) of 1/area.
+        spread = got.std(ddof=1) / np.sqrt(n)
+        assert abs(got.mean() - exact) <= 5.0 * spread + t2 / (4.0 * rx * ry), (width, got.mean(), exact, spread)
+        assert np.ptp(got) > 0.0  # the rounding varies with the shading point
 
 
 def test_gap_transmission_skips_the_tables_only_for_lanes_without_a_footprint():

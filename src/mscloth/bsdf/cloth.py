@@ -570,8 +570,7 @@ def make_cloth_class():
             # the yarn coverage of a gap-free footprint read 0.54-1.62, so the gap lobe let
             # light through where there are no gaps (its negative values cannot be sampled)
             # and lobe probabilities reached -39 and +40 (docs/decisions.md).
-            boxes = [round_box(*box, xi_round.x, xi_round.y) for box in fp["boxes"]]
-            q = [sats.query_on_grid(*box) for box in boxes]
+            boxes, q = self._rounded_boxes(fp, xi_round)
             areas = [q_.area for q_ in q]
             inv_area = dr.rcp(sum(areas))
 
@@ -638,6 +637,12 @@ def make_cloth_class():
             lower = dr.select(diffuse > 0.0, p_dt / dr.select(diffuse > 0.0, diffuse, 1.0), 0.5)
             st["eps_lower"] = eps_c * dr.clip(lower, self.DEFENSIVE_MIN_SIDE, 1.0 - self.DEFENSIVE_MIN_SIDE)
             return st
+
+        def _rounded_boxes(self, fp, xi_round):
+            """The footprint's boxes with their corners rounded stochastically to whole
+            texels by ``xi_round`` (the box that is shaded), and their SAT queries."""
+            boxes = [round_box(*box, xi_round.x, xi_round.y) for box in fp["boxes"]]
+            return boxes, [self.footprint_data.scalar_sats.query_on_grid(*box) for box in boxes]
 
         def _mean_sigma(self, st, w):
             """sigma(w) of the footprint's mean SGGX matrix S = I - (1 - alpha^2) <t t^T>."""
@@ -1002,7 +1007,10 @@ def make_cloth_class():
         def gap_transmission(self, si, active=True):
             """Fraction of light crossing the cloth straight along -si.wi through its gaps:
             T_sheen(i)^2 (1 - I), with I the yarn coverage of the footprint in
-            si.duv_dx/dy (multi-scale) or of the texel (used by clothpath's shadow rays)."""
+            si.duv_dx/dy (multi-scale) or of the texel (used by clothpath's shadow rays).
+            The footprint's I is its mean over the stochastically rounded box, the one the
+            footprint BSDF shades: the crossing lets through what the BSDF's gap lobe
+            does at the same point."""
             fr = self._frame(si, active)
             pt = self._texel(fr, fr["x"], fr["y"])
             yarn = pt["yarn"]
@@ -1011,14 +1019,13 @@ def make_cloth_class():
                 sats = self.footprint_data.scalar_sats
 
                 def footprint_yarn():
-                    # Exact corners: stochastic rounding (one read per corner instead of
-                    # four) is unbiased only before the clip below, which a nearly gap-free
-                    # footprint needs (the rounded box can hold more yarn than the exact
-                    # area): clipped, it let light through where there are no gaps
-                    # (docs/decisions.md).
-                    covered = sum(sats.integral(sats.query(*box), self.footprint_data.GAP)
-                                  for box in fp["boxes"])
-                    return covered / fp["area"]
+                    # One read per corner; the exact corners' bilinear reads were four, and
+                    # most of what a shadow ray crossing cloth cost (docs/decisions.md). A
+                    # mean over the rounded box stays in [0, 1]: divided by the exact area
+                    # it did not, and its clip let light through gap-free footprints.
+                    _, q = self._rounded_boxes(fp, self._hash(si)[1])
+                    covered = sum(sats.integral(q_, self.footprint_data.GAP) for q_ in q)
+                    return covered / sum(q_.area for q_ in q)
 
                 # Packets without a footprint (shadow rays from vertices shaded at a point)
                 # skip the table reads.
