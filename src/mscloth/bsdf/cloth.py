@@ -398,7 +398,7 @@ def make_cloth_class():
             rx = dr.select(use, dr.maximum(rx, 0.5), 0.5)
             ry = dr.select(use, dr.maximum(ry, 0.5), 0.5)
             boxes = [(cx - rx, cy - ry, cx + rx, cy + ry) for cx, cy in centres]
-            return dict(use=use, boxes=boxes, area=4.0 * K * rx * ry, rx=rx, ry=ry, sub_x=sub_x, sub_y=sub_y)
+            return dict(use=use, boxes=boxes, sub_x=sub_x, sub_y=sub_y)
 
         def _edges_texels(self, si):
             """The pixel footprint's edges si.duv_dx, si.duv_dy in texels of this tile."""
