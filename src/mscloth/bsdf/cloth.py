@@ -1012,26 +1012,29 @@ def make_cloth_class():
             footprint BSDF shades: the crossing lets through what the BSDF's gap lobe
             does at the same point."""
             fr = self._frame(si, active)
-            pt = self._texel(fr, fr["x"], fr["y"])
-            yarn = pt["yarn"]
-            if self.multiscale:
+
+            def texel_yarn():
+                return self._texel(fr, fr["x"], fr["y"])["yarn"]
+
+            if not self.multiscale:
+                yarn = texel_yarn()
+            else:
                 fp = self._footprint(si, fr)
                 sats = self.footprint_data.scalar_sats
 
                 def footprint_yarn():
-                    # One read per corner; the exact corners' bilinear reads were four, and
-                    # most of what a shadow ray crossing cloth cost (docs/decisions.md). A
-                    # mean over the rounded box stays in [0, 1]: divided by the exact area
-                    # it did not, and its clip let light through gap-free footprints.
+                    # One read per corner of the rounded box (exact corners took four, and
+                    # were most of what a shadow ray crossing cloth cost). Its mean stays in
+                    # [0, 1]: over the exact area it did not, and the clip below then let
+                    # light through gap-free footprints (docs/decisions.md).
                     _, q = self._rounded_boxes(fp, self._hash(si)[1])
                     covered = sum(sats.integral(q_, self.footprint_data.GAP) for q_ in q)
                     return covered / sum(q_.area for q_ in q)
 
-                # Packets without a footprint (shadow rays from vertices shaded at a point)
-                # skip the table reads.
-                texel_yarn = yarn
+                # Packets whose lanes all have a footprint skip the texel read; packets
+                # without one (shadow rays from vertices shaded at a point) the table reads.
                 yarn = _branch(fp["use"] & active, (si, active), true_fn=footprint_yarn,
-                               false_fn=lambda: mi.Float(texel_yarn), label="cloth_gap_footprint")
+                               false_fn=texel_yarn, label="cloth_gap_footprint")
             t_sheen = fr["t_sheen_i"]
             return dr.select(active & (dr.abs(si.wi.z) > spongecake.COS_EPSILON),
                              t_sheen * t_sheen * dr.clip(1.0 - yarn, 0.0, 1.0), 0.0)
