@@ -6,7 +6,7 @@ def region(speedup, spp_bf_curve):
     return {"speedup": speedup, "relmse_multiscale": 0.004, "relmse_bruteforce": 0.002,
             "spp_multiscale": 16, "spp_bruteforce": 64, "seconds_multiscale": 0.12,
             "seconds_bruteforce": 0.14, "relmse_bruteforce_equal_spp": 0.006,
-            "seconds_bruteforce_equal_spp": 0.04,
+            "seconds_bruteforce_equal_spp": 0.04, "spp_bruteforce_equal_spp": 16,
             "curve_bruteforce": [{"spp": s, "relmse": 0.1 / s, "seconds": 0.01 * s} for s in spp_bf_curve]}
 
 
@@ -46,3 +46,35 @@ def test_results_page_has_every_table_and_the_split_of_the_speed_up(tmp_path):
             "| 0.001 / 0.0002 / 1e-06 |") in text
     assert "20x under the sun alone" in text and "3x brute force's" in text
     assert "is largest in plane's near region, 0.001 / 0.0002 / 1e-06 (footprint_slices 1 / footprint_slices 4 / bruteforce)" in text
+    # Per scene and region: speed-up, bias, noise of both methods (sun and sky), time per
+    # sample of both (0.12 s / 16 spp, 0.04 s / 16 spp); scenes without a budget say so.
+    assert "| plane | middle | 0.40x | 0.001 | 0.04 / 0.12 | 7.5 / 2.5 | 1.00x |" in text
+    assert "| sphere | far | 0.30x | not measured | not measured | 7.5 / 2.5 | not measured |" in text
+    assert text.index("## Per scene and region") < text.index("## Why: noise per sample and bias")
+
+
+def test_scenes_only_page_leaves_out_the_other_sections(tmp_path):
+    out = tmp_path / "RESULTS.md"
+    compare = [("satin", {g: region(2.0, (1, 16)) for g in ("near", "middle", "far")})]
+    write_results(out, "python -m mscloth.benchmark --scenes satin --scenes-only", "llvm_ad_rgb", [], "", [], 1024,
+                  compare_rows=compare, budget_rows=[("satin", {g: BUDGET for g in ("near", "middle", "far")})],
+                  compare_res=(64, 36), compare_budget=5.0)
+    text = out.read_text()
+    assert "## Multi-scale vs brute force (`mscloth compare`, 64x36, budget 5 s)" in text
+    assert "| satin | far | 2.00x | 0.001 | 0.04 / 0.12 | 7.5 / 2.5 | 1.00x |" in text
+    assert "(`mscloth.error_budget`, 64x36)" in text
+    for absent in ("## Per-sample cost", "## Multi-scale tables", "## Control-variate bias", "## Map generation"):
+        assert absent not in text
+
+
+def test_scene_and_comparison_options_are_checked(capsys):
+    import pytest
+
+    from mscloth.benchmark import main
+
+    for bad, message in ((["--scenes", "satin,nosuch"], "expected comma-separated built-in scenes"),
+                         (["--compare-res", "wide"], "WIDTHxHEIGHT"),
+                         (["--compare-budget", "0"], "--compare-budget")):
+        with pytest.raises(SystemExit) as exit_info:
+            main(bad)
+        assert exit_info.value.code == 2 and message in capsys.readouterr().err

@@ -106,3 +106,26 @@ def test_loading_cached_tables_marks_them_used(tmp_path):
     (entry,) = cache_entries(tmp_path)
     assert entry.last_used > time.time() - 3600 and tables.key in entry.name
     assert np.all(np.isfinite(tables.d_sat))
+
+
+def test_scene_maps_directories_and_hyphenated_scene_references_are_entries(tmp_path, capsys, monkeypatch):
+    """The built-in scenes' maps directories (one entry each, removed with their files) and
+    the references of scenes named with a hyphen (``satin-plane``)."""
+    from mscloth.scenes.builtin import scene_maps
+
+    root = tmp_path / "cache"
+    monkeypatch.setenv("MSCLOTH_CACHE", str(root))
+    maps = scene_maps("plain_maps", {"pattern": "plain", "resolution": 8, "yarn_width": 1.0})
+    assert scene_maps("plain_maps", {"pattern": "plain", "resolution": 8, "yarn_width": 1.0}) == maps
+    _write(root / "scenes" / f".plain_maps-{'2' * 12}.ab12cd34" / "maps.npz", 50)  # a killed write
+    _write(root / "references" / f"satin-plane-320x180-1024spp-{'0' * 16}.npz", 200)
+    _write(root / "scenes" / "my-maps" / "maps.npz", 7)  # not mscloth's
+    entries = cache_entries(root)
+    assert sorted((e.kind, e.unfinished) for e in entries) == [
+        ("references", False), ("scene maps", False), ("scene maps", True)]
+    (done,) = [e for e in entries if e.kind == "scene maps" and not e.unfinished]
+    assert str(done.directory) == maps and {p.name for p in done.paths} == {"maps.npz", "maps.json"}
+    assert main(["cache", "--clear"]) == 0
+    assert "removed 3 entries" in capsys.readouterr().out
+    left = sorted(str(p.relative_to(root)) for p in root.rglob("*"))
+    assert left == ["references", "scenes", "scenes/my-maps", "scenes/my-maps/maps.npz"]

@@ -327,7 +327,8 @@ def _exact_yarn(bsdf, x0, y0, x1, y1):
 def test_gap_transmission_of_a_footprint_is_its_gap_lobe():
     """Shadow rays crossing multi-scale cloth see T_sheen^2 (1 - I), I the yarn coverage of
     the footprint over the box the footprint BSDF shades (its corners rounded to whole
-    texels by the shading point's hash): at every lane exactly the BSDF's own gap lobe, in
+    texels by the shading point's hash), or below 8 texels, where some lanes are shaded
+    fibre level, of the point's texel: at every lane exactly the BSDF's own gap lobe, in
     [0, T_sheen^2], zero for a gap-free footprint (dividing the rounded box's yarn by the
     exact area, then clipping, gave a gap-free 2.3-texel footprint 0.09), and over the
     random roundings the exact footprint's fraction."""
@@ -358,7 +359,15 @@ def test_gap_transmission_of_a_footprint_is_its_gap_lobe():
         got = np.array(bsdf.gap_transmission(si))
         fr = bsdf._frame(si, True)
         t2 = float(np.array(fr["t_sheen_i"])[0]) ** 2
-        lobe = np.array(bsdf._footprint_state(si, fr, [True] * 6)["yarn_mean"])
+        # Lanes shaded as a footprint (all of them from 8 texels on) see its yarn mean, the
+        # others (a 2.3 x 1.6 texel footprint is mostly shaded fibre level) their point's texel.
+        xi, _, u_choice = bsdf._hash(si)
+        fp = bsdf._footprint(si, fr, u_choice)
+        use = np.broadcast_to(np.array(fp["use"]), (n,))
+        assert use.all() if width > 4 else 0 < use.mean() < 1
+        footprint = np.array(bsdf._footprint_state(si, fr, [True] * 6)["yarn_mean"])
+        point = np.array(bsdf._texel(fr, *bsdf._point_in_footprint(fr, fp, xi))["yarn"])
+        lobe = np.where(use, footprint, point)
         np.testing.assert_allclose(got, t2 * (1.0 - lobe), rtol=1e-5, atol=1e-7)
         assert np.all((got >= 0.0) & (got <= t2 * (1.0 + 1e-6)))
         if gap_free:

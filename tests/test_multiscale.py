@@ -60,15 +60,15 @@ def test_footprint_matches_brute_force(visibility, half, dirs):
     bsdf = mi.load_dict(params)
     wi, wo = DIRECTIONS[dirs]
     uv = [0.3, 0.55]
-    ms, ms_err, used = multiscale_expectation(bsdf, uv, half, wi, wo)
+    ms, ms_err, _ = multiscale_expectation(bsdf, uv, half, wi, wo)
     bf, bf_err = brute_force(params, uv, half, wi, wo)
-    assert used == (half > 0.5)
     tolerance = 5.0 * np.hypot(ms_err, bf_err) + APPROXIMATION * abs(bf)
     assert abs(ms - bf) <= tolerance, (ms, bf, tolerance)
 
 
 def test_sub_texel_footprint_is_the_fibre_level_bsdf():
-    """Footprints under a texel: the fibre-level BSDF at a point drawn in the footprint."""
+    """Footprints under POINT_TEXELS texels: the fibre-level BSDF at a point drawn uniformly
+    in the footprint's parallelogram."""
     bsdf = mi.load_dict(BASE)
     point = mi.load_dict(dict(BASE, multiscale=False))
     rng = np.random.default_rng(3)
@@ -83,7 +83,7 @@ def test_sub_texel_footprint_is_the_fibre_level_bsdf():
     a = np.array(bsdf.eval(ctx, si, mi.Vector3f(*wo.T)))
     # The fibre-level BSDF at the point the footprint BSDF drew in the footprint.
     xi = np.array(bsdf._hash(si)[0])
-    uv_drawn = uv + (2.0 * xi.T - 1.0) * np.array([0.15, 0.1]) / N_TEXELS
+    uv_drawn = uv + (xi.T - 0.5) * np.array([0.3, 0.2]) / N_TEXELS
     b = np.array(point.eval(ctx, make_si(mi.Vector3f(*wi.T), mi.Point2f(*uv_drawn.T), n), mi.Vector3f(*wo.T)))
     np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
     # A zero footprint is the fibre-level BSDF at si.uv itself, bit for bit.
@@ -131,9 +131,9 @@ def test_footprint_furnace_and_weights():
             np.testing.assert_allclose(np.array(bs.pdf)[ok], np.array(pdf)[ok], rtol=1e-4)
 
 
-@pytest.mark.parametrize("slices", [1, 3])
-def test_no_nan_on_random_and_degenerate_footprints(slices):
-    bsdf = mi.load_dict(dict(BASE, footprint_slices=slices))
+@pytest.mark.parametrize("roughness", [0.05, 0.4])
+def test_no_nan_on_random_and_degenerate_footprints(roughness):
+    bsdf = mi.load_dict(dict(BASE, roughness=roughness))
     rng = np.random.default_rng(6)
     n = 300_000
     wi = rng.normal(size=(n, 3)); wi /= np.linalg.norm(wi, axis=1, keepdims=True)
@@ -143,6 +143,7 @@ def test_no_nan_on_random_and_degenerate_footprints(slices):
     scale[: n // 10] = 0.0                                 # zero footprints
     scale[n // 10: n // 5, 1:3] = 0.0                      # skewed: a line
     scale[n // 5: n // 4] = np.inf                         # degenerate input
+    scale[n // 4: n // 3, 2:] = scale[n // 4: n // 3, :2] * rng.uniform(0.9, 1.1, (n // 3 - n // 4, 1))  # sheared flat
     si.duv_dx = mi.Vector2f(*scale[:, :2].T)
     si.duv_dy = mi.Vector2f(*scale[:, 2:].T)
     ctx = mi.BSDFContext()
@@ -255,30 +256,6 @@ def test_direction_rank_must_fit_the_bins():
         mi.load_dict(dict(BASE, direction_bins=4, direction_rank=17))
 
 
-def test_direction_bin_pick_follows_the_bilinear_weights():
-    """The footprint eval reads one of the four bins around h, bin j with probability
-    w_j: over a stratified grid of u, each bin's share is its bilinear weight to 1/n, for
-    directions anywhere (edge bins clamp and repeat: their weights add up)."""
-    from mscloth.bsdf.sat_queries import hemisphere_bins, pick_bin
-
-    rng = np.random.default_rng(11)
-    n = 4096
-    for _ in range(5):
-        w = rng.normal(size=3)
-        w[2] = abs(w[2])
-        w /= np.linalg.norm(w)
-        bins, weights = hemisphere_bins(mi.Vector3f(*[mi.Float(np.full(n, c)) for c in w]), 16)
-        u = mi.Float((np.arange(n) + 0.5) / n)
-        chosen = np.asarray(pick_bin(bins, weights, u))
-        expected = {}
-        for b, wt in zip(bins, weights):
-            key = int(np.asarray(b)[0])
-            expected[key] = expected.get(key, 0.0) + float(np.asarray(wt)[0])
-        assert set(np.unique(chosen)) <= set(expected)
-        for key, share in expected.items():
-            assert abs(np.mean(chosen == key) - share) <= 1.0 / n + 1e-6
-
-
 def test_sat_queries_far_from_the_origin_keep_their_precision():
     """A finely tiled surface puts footprints hundreds of tiles from the texel origin (the
     `plane` scene: uv_scale 500). A 1-texel box there must read what it reads in the first
@@ -309,7 +286,7 @@ def test_sat_queries_far_from_the_origin_keep_their_precision():
             np.testing.assert_allclose(np.array(packet), np.array(sats.integral(q3, c)), rtol=1e-6, atol=1e-6)
 
 
-# ---------------------------------------------------------------- sheared footprints (slices)
+# ---------------------------------------------------------------- sheared footprints (probes)
 def sheared_si(n, uv, a_texels, shear, wi):
     """A pixel footprint with edges a = (a, 0) and b = (shear * a, a) texels: the parallelogram
     a perspective camera gives towards the image's sides."""
@@ -320,46 +297,57 @@ def sheared_si(n, uv, a_texels, shear, wi):
     return si
 
 
-@pytest.mark.parametrize("slices", [1, 2, 4])
-def test_footprint_slices_cover_the_pixel_parallelogram(slices):
-    """``footprint_slices`` = K: K equal boxes, together covering the parallelogram of the
-    pixel (every point of it lies in some box), with less area the more there are (K = 1: the
-    bounding box of the convention); an axis-aligned footprint is cut into K exact pieces."""
-    bsdf = mi.load_dict(dict(BASE, footprint_slices=slices))
+def probe_boxes(bsdf, si, u_probe):
+    fp = bsdf._footprint(si, bsdf._frame(si, True), mi.Float(0.0), mi.Float(u_probe))
+    return np.array([np.asarray(v) for v in fp["boxes"][0]]).T  # (n, 4)
+
+
+@pytest.mark.parametrize("a,shear", [(12.0, 0.9), (40.0, 3.0), (12.0, 0.0), (30.0, -0.2), (3.0, 1.0)])
+def test_footprint_probes_tile_the_pixel_parallelogram(a, shear):
+    """The probes of a pixel's parallelogram (edges (a, 0) and (shear a, a) texels): slices
+    of it, each shaded as its bounding box. Together they cover every point of the
+    parallelogram, far less area than its bounding box where it is sheared, and exactly the
+    rectangle where it is not; each probe's centre lies on the pixel's centre line."""
+    bsdf = mi.load_dict(BASE)
+    uv = [0.3, 0.55]
+    m = 64
+    u = (np.arange(m) + 0.5) / m
+    boxes = np.unique(probe_boxes(bsdf, sheared_si(m, uv, a, shear, [0.2, 0.1, 0.97]), u), axis=0)
+    n = len(boxes)
+    assert 1 <= n <= bsdf.MAX_PROBES
     rng = np.random.default_rng(8)
-    uv, a, shear = [0.3, 0.55], 12.0, 0.9
-    si = sheared_si(1, uv, a, shear, [0.2, 0.1, 0.97])
-    fp = bsdf._footprint(si, bsdf._frame(si, True))
-    boxes = np.array([[float(np.asarray(v)[0]) for v in box] for box in fp["boxes"]])  # (K, 4)
-    assert boxes.shape == (slices, 4)
-    c = np.array(uv) * N_TEXELS
     s, t = rng.random(20000) - 0.5, rng.random(20000) - 0.5
+    c = np.array(uv) * N_TEXELS
     pts = c + np.outer(s, [a, 0.0]) + np.outer(t, [shear * a, a])
-    inside = ((pts[:, None, 0] >= boxes[None, :, 0] - 1e-4) & (pts[:, None, 0] <= boxes[None, :, 2] + 1e-4)
-              & (pts[:, None, 1] >= boxes[None, :, 1] - 1e-4) & (pts[:, None, 1] <= boxes[None, :, 3] + 1e-4))
+    eps = 1e-3
+    inside = ((pts[:, None, 0] >= boxes[None, :, 0] - eps) & (pts[:, None, 0] <= boxes[None, :, 2] + eps)
+              & (pts[:, None, 1] >= boxes[None, :, 1] - eps) & (pts[:, None, 1] <= boxes[None, :, 3] + eps))
     assert np.all(inside.any(axis=1))
-    area = ((boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])).sum()
-    bounding = (1.0 + shear) * a * a
-    parallelogram = a * a
-    assert parallelogram <= area <= bounding * (1 + 1e-5)
-    assert (slices == 1) == bool(np.isclose(area, bounding, rtol=1e-5))
-    # Axis-aligned: K exact pieces of the rectangle, no overlap.
-    si = sheared_si(1, uv, a, 0.0, [0.2, 0.1, 0.97])
-    fp = bsdf._footprint(si, bsdf._frame(si, True))
-    boxes = np.array([[float(np.asarray(v)[0]) for v in box] for box in fp["boxes"]])
-    np.testing.assert_allclose(((boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])).sum(), a * a, rtol=1e-5)
+    probe_area = ((boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])).sum()
+    bounding = (1.0 + abs(shear)) * a * a
+    assert a * a <= probe_area * (1 + 1e-5)
+    if abs(shear) >= 0.9 and a > 4:
+        assert probe_area < 0.8 * bounding, (probe_area, bounding)
+    if shear == 0.0:  # axis-aligned: pieces of the rectangle itself
+        np.testing.assert_allclose(probe_area, a * a, rtol=1e-5)
+    # Centres on the line through the pixel's centre along the sliced edge.
+    centres = 0.5 * (boxes[:, :2] + boxes[:, 2:]) - c
+    edges = np.array([[a, 0.0], [shear * a, a]])
+    cross = [centres[:, 0] * e[1] - centres[:, 1] * e[0] for e in edges]
+    on_a, on_b = (np.abs(c_) <= 1e-3 * a * a for c_ in cross)
+    assert on_a.all() or on_b.all()
 
 
-@pytest.mark.parametrize("slices", [2, 4])
-def test_sliced_footprint_matches_brute_force_over_its_boxes(slices):
-    """The footprint BSDF over K boxes is the mean of the fibre-level BSDF over their union
-    (boxes equal in size: a box uniformly, then a point uniformly in it), within the same
-    tolerance as square footprints, for a sheared pixel, with visibility."""
-    params = dict(BASE, footprint_slices=slices)
+@pytest.mark.parametrize("a,shear", [(10.0, 0.8), (6.0, 2.5)])
+def test_sheared_footprint_matches_brute_force_over_the_parallelogram(a, shear):
+    """The footprint BSDF with its probe drawn uniformly is the mean of the fibre-level BSDF
+    over the pixel's parallelogram (not its bounding box), within the same tolerance as
+    square footprints, with visibility."""
+    params = dict(BASE)
     bsdf = mi.load_dict(params)
     point = mi.load_dict(dict(params, multiscale=False))
     ctx = validation._non_delta_context()
-    uv, a, shear = [0.3, 0.55], 10.0, 0.8
+    uv = [0.3, 0.55]
     for wi, wo in DIRECTIONS[:3]:
         n = 20000
         si = sheared_si(n, uv, a, shear, unit(wi))
@@ -370,11 +358,10 @@ def test_sliced_footprint_matches_brute_force_over_its_boxes(slices):
                    mi.Float(rng.random(n)))
         st = bsdf._footprint_state(si, fr, enabled, *numbers)
         ms = np.array(bsdf._eval_footprint(fr, st, bsdf._mirror(fr, mi.Vector3f(unit(wo))), enabled))[0]
-        boxes = np.array([[float(np.asarray(v)[0]) for v in box] for box in st["fp"]["boxes"]])
         m = 200000
-        j = rng.integers(0, slices, m)
-        x = boxes[j, 0] + rng.random(m) * (boxes[j, 2] - boxes[j, 0])
-        y = boxes[j, 1] + rng.random(m) * (boxes[j, 3] - boxes[j, 1])
+        s, t = rng.random(m) - 0.5, rng.random(m) - 0.5
+        x = uv[0] * N_TEXELS + s * a + t * shear * a
+        y = uv[1] * N_TEXELS + t * a
         psi = dr.zeros(mi.SurfaceInteraction3f, m)
         psi.wi = mi.Vector3f(unit(wi))
         psi.uv = mi.Point2f(x / N_TEXELS, y / N_TEXELS)
@@ -383,6 +370,27 @@ def test_sliced_footprint_matches_brute_force_over_its_boxes(slices):
         bf_mean, bf_err = bf.mean(), bf.std() / np.sqrt(m)
         tolerance = 5.0 * np.hypot(ms_err, bf_err) + APPROXIMATION * abs(bf_mean)
         assert abs(ms_mean - bf_mean) <= tolerance, (wi, wo, ms_mean, bf_mean, tolerance)
+
+
+def test_small_footprints_blend_into_fibre_level_shading():
+    """The share of lanes shaded as a footprint rises linearly from 0 at POINT_TEXELS
+    texels to 1 at FOOTPRINT_TEXELS, by the footprint's area (square, sheared, a line)."""
+    bsdf = mi.load_dict(BASE)
+    n = 20000
+    lo, hi = bsdf.POINT_TEXELS, bsdf.FOOTPRINT_TEXELS
+    for texels in (1.0, lo, 0.5 * (lo + hi), 0.75 * lo + 0.25 * hi, hi, 4 * hi):
+        for shear in (0.0, 1.5):
+            side = float(np.sqrt(texels))
+            si = sheared_si(n, [0.3, 0.55], side, shear, [0.2, 0.1, 0.97])
+            si.uv = mi.Point2f(*np.random.default_rng(1).random((2, n)))
+            si.p = mi.Point3f(*np.random.default_rng(2).random((3, n)))
+            # A skew this large makes the longer edge the sheared one; its width shrinks.
+            length = side * max(1.0, np.hypot(shear, 1.0))
+            covered = max(length, 1.0) * max(side * side / length, 1.0)
+            expected = np.clip((covered - lo) / (hi - lo), 0.0, 1.0)
+            use = np.array(bsdf._footprint(si, bsdf._frame(si, True), bsdf._hash(si)[2])["use"])
+            assert abs(use.mean() - expected) <= 5.0 * np.sqrt(expected * (1 - expected) / n) + 1e-9, \
+                (texels, shear, use.mean(), expected)
 
 
 @pytest.mark.parametrize("dv", [4, 8, 12])
@@ -416,14 +424,13 @@ def test_packed_visibility_reads_the_table(dv):
     np.testing.assert_allclose(got, expected, atol=1e-6)
 
 
-@pytest.mark.parametrize("slices", [1, 3])
-def test_footprint_means_are_means_and_lobe_choices_a_distribution(slices):
+def test_footprint_means_are_means_and_lobe_choices_a_distribution():
     """Footprints of 1-5 texels anywhere, sheared or not: the SAT means of the rounded box
     are averages (yarn coverage and cluster shares in [0, 1], the shares summing to the
     coverage) and the sampling mixture's lobe probabilities are >= 0 and sum to 1. Means
     normalised by the exact area instead read 0.54-1.62 for a gap-free footprint of 2.3
     texels, and the gap lobe's probability reached -39."""
-    bsdf = mi.load_dict(dict(BASE, footprint_slices=slices))
+    bsdf = mi.load_dict(BASE)
     rng = np.random.default_rng(12)
     n = 20000
     w = rng.normal(size=(n, 3)); w[:, 2] = np.abs(w[:, 2]) + 0.05
@@ -437,8 +444,8 @@ def test_footprint_means_are_means_and_lobe_choices_a_distribution(slices):
     si.duv_dy = mi.Vector2f(size[2], size[3])
     fr = bsdf._frame(si, True)
     st = bsdf._footprint_state(si, fr, [True] * 6)
-    use = np.array(bsdf._footprint(si, fr)["use"])
-    assert use.mean() > 0.9
+    use = np.array(bsdf._footprint(si, fr, bsdf._hash(si)[2])["use"])
+    assert use.mean() > 0.3
     yarn = np.array(st["yarn_mean"])[use]
     shares = np.array([np.array(f) for f in st["fractions"]])[:, use]
     assert yarn.min() >= -1e-5 and yarn.max() <= 1.0 + 1e-5

@@ -287,33 +287,89 @@ def bench_ccv_bias() -> list[tuple]:
 COMPARE_RES, COMPARE_BUDGET = (320, 180), 60.0
 
 
-def bench_compare() -> list[tuple[str, dict]]:
-    """`mscloth compare` on every built-in scene; (scene, its JSON figures)."""
+def bench_compare(scenes=None, res=COMPARE_RES, budget: float = COMPARE_BUDGET,
+                  out_root: Path = Path("out")) -> list[tuple[str, dict]]:
+    """`mscloth compare` on each of ``scenes`` (default: every built-in scene); (scene, its
+    JSON figures)."""
     from .compare import run_compare
     from .scenes.builtin import SCENES
 
     rows = []
-    for name in SCENES:
-        out = Path("out") / f"compare-{name}"
-        result = run_compare(name, *COMPARE_RES, budget=COMPARE_BUDGET, out_dir=out, quiet=True)
+    for name in (SCENES if scenes is None else scenes):
+        out = Path(out_root) / f"compare-{name}"
+        result = run_compare(name, *res, budget=budget, out_dir=out, quiet=True)
         rows.append((name, result))
         print("  " + name + ": " + ", ".join(f"{g} {result[g]['speedup']:.2f}x" for g in ("near", "middle", "far")),
               flush=True)
     return rows
 
 
-#: The scenes of the speed-up targets (issue 5), whose error the benchmark takes apart.
-BUDGET_SCENES = ("plane", "sphere")
+#: The scenes whose error the benchmark takes apart: the targets of issue 5 (plane, sphere)
+#: and of issue 20 (the shiny scenes). Not drape (~2 more minutes).
+BUDGET_SCENES = ("plane", "sphere", "satin", "satin-plane", "denim")
 
 
-def bench_error_budget() -> list[tuple[str, dict]]:
-    """:func:`mscloth.error_budget.error_budget` of the target scenes at compare's setting."""
+def bench_error_budget(scenes=BUDGET_SCENES, res=COMPARE_RES, slices=(1,), **kw) -> list[tuple[str, dict]]:
+    """:func:`mscloth.error_budget.error_budget` of ``scenes`` at compare's setting (``kw``:
+    its sample counts, for quick runs). Multi-scale's bias with the default
+    ``footprint_slices`` only: footprints are the pixel's parallelogram now, and cloth no
+    longer uses more slices."""
     from .error_budget import error_budget
 
-    return [(name, error_budget(name, *COMPARE_RES)) for name in BUDGET_SCENES]
+    rows = []
+    for name in scenes:
+        rows.append((name, error_budget(name, *res, slices=slices, quiet=True, **kw)))
+        print(f"  {name}: done", flush=True)
+    return rows
 
 
-def _budget_lines(budget_rows, compare_rows) -> list[str]:
+def seconds_per_sample(region: dict) -> tuple[float, float]:
+    """(multi-scale, brute force) seconds per sample per pixel of the whole frame, from one
+    region's `mscloth compare` figures: multi-scale at its chosen spp, brute force at the spp
+    nearest to it (the same render for every region)."""
+    return (region["seconds_multiscale"] / region["spp_multiscale"],
+            region["seconds_bruteforce_equal_spp"] / region["spp_bruteforce_equal_spp"])
+
+
+def _summary_lines(compare_rows, budget_rows) -> list[str]:
+    """One row per scene and region: what the speed-up is made of."""
+    from .error_budget import noise_only_speedup
+
+    budgets = dict(budget_rows)
+    lines = [
+        "",
+        "## Per scene and region: speed-up, bias, noise, time",
+        "",
+        "Equal-error speed-up (above); multi-scale's squared relative bias b^2 (default",
+        "`footprint_slices`); noise per sample v = relMSE x spp with the scene's sun and sky, both",
+        "methods; time per sample t: milliseconds per spp of the whole frame (multi-scale at its",
+        "spp, brute force at the same spp). With n = multi-scale's spp, the speed-up is about",
+        "[v_bf / (b^2 + v_ms / n)] / n x t_bf / t_ms (DESIGN 4.6); the noise-only speed-up is it",
+        "without the bias. Error-budget figures (next section) for the scenes in its table only.",
+        "",
+        "| scene | region | speed-up | bias^2, multi-scale | noise per sample: multi-scale / brute force "
+        "| time per sample ms: multi-scale / brute force | noise-only speed-up |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, result in compare_rows:
+        budget = budgets.get(name)
+        for g in ("near", "middle", "far"):
+            r = result[g]
+            t_ms, t_bf = seconds_per_sample(r)
+            if budget is not None:
+                b = budget[g]
+                bias = f"{next(iter(b['bias'].values())):.2g}"
+                noise = f"{b['noise']['multiscale']['both']:.3g} / {b['noise']['bruteforce']['both']:.3g}"
+                ratio = r["seconds_multiscale"] / r["seconds_bruteforce_equal_spp"]
+                only = f"{noise_only_speedup(b['noise'], ratio):.2f}x"
+            else:
+                bias = noise = only = "not measured"
+            lines.append(f"| {name} | {g} | {r['speedup']:.2f}x | {bias} | {noise} | {t_ms * 1e3:.1f} / "
+                         f"{t_bf * 1e3:.1f} | {only} |")
+    return lines
+
+
+def _budget_lines(budget_rows, compare_rows, res=COMPARE_RES) -> list[str]:
     from .error_budget import BIAS_SPP, NOISE_RENDERS, NOISE_SPP, noise_only_speedup
 
     speedups = dict(compare_rows)
@@ -325,7 +381,7 @@ def _budget_lines(budget_rows, compare_rows) -> list[str]:
             cells.append((name, g, budget[g], r, r["seconds_multiscale"] / r["seconds_bruteforce_equal_spp"]))
     lines = [
         "",
-        f"## Why: noise per sample and bias (`mscloth.error_budget`, {COMPARE_RES[0]}x{COMPARE_RES[1]})",
+        f"## Why: noise per sample and bias (`mscloth.error_budget`, {res[0]}x{res[1]})",
         "",
         f"relMSE = bias^2 + noise / spp. Noise per sample: {NOISE_RENDERS} renders of {NOISE_SPP} spp, both "
         "methods, with the",
@@ -337,7 +393,8 @@ def _budget_lines(budget_rows, compare_rows) -> list[str]:
         "",
         "| scene | region | noise, multi-scale: sun / sky / both | noise, brute force: sun / sky / both "
         "| time per sample ms / bf | noise-only speed-up | measured speed-up "
-        "| bias^2: multi-scale (slices 1 / 4) / brute force |",
+        "| bias^2: " + " / ".join(label.replace("multiscale", "multi-scale").replace("bruteforce", "brute force")
+                                  for label in budget_rows[0][1]["near"]["bias"]) + " |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for name, g, b, r, ratio in cells:
@@ -369,8 +426,7 @@ def _budget_lines(budget_rows, compare_rows) -> list[str]:
         f"which brute force has as well) and {noise_ratio('both')}x with both; compare the columns to see "
         f"which light dominates. Multi-scale's time per sample is {span([c[4] for c in cells])}x brute force's. "
         "The speed-up cannot exceed the noise ratio over the time ratio, whatever the bias. "
-        "Multi-scale's bias (mostly the footprint box being larger than the sheared pixel: more "
-        "slices lower it) is largest in "
+        "Multi-scale's bias is largest in "
         + "; ".join(f"{name}'s {g} region, {' / '.join(f'{v:.2g}' for v in b['bias'].values())}"
                     for name, g, b, _, _ in worst.values())
         + " (" + " / ".join(labels) + "). 30x needs scenes whose noise is the weave's rather than the "
@@ -381,7 +437,9 @@ def _budget_lines(budget_rows, compare_rows) -> list[str]:
 
 def write_results(path: Path, command: str, variant: str, cost_rows, cost_setup, maps_seconds, maps_res,
                   table_rows=(), ccv_rows=(), compare_rows=(), budget_rows=(), call_rows=(),
-                  call_setup="") -> None:
+                  call_setup="", compare_res=COMPARE_RES, compare_budget=COMPARE_BUDGET) -> None:
+    """Write bench/RESULTS.md from measured rows; a section whose rows are empty is left out
+    (``--scenes-only`` runs)."""
     lines = [
         "# Benchmark results",
         "",
@@ -389,6 +447,24 @@ def write_results(path: Path, command: str, variant: str, cost_rows, cost_setup,
         f"Machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, "
         f"variant `{variant}`, {time.strftime('%Y-%m-%d')}.",
         "",
+    ]
+    if cost_rows:
+        lines += _cost_lines(cost_rows, cost_setup, call_rows, call_setup)
+    if table_rows:
+        lines += _table_lines(table_rows)
+    if compare_rows:
+        lines += _compare_lines(compare_rows, budget_rows, compare_res, compare_budget)
+    if ccv_rows:
+        lines += _ccv_lines(ccv_rows)
+    if maps_seconds:
+        lines += _maps_lines(maps_seconds)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text("\n".join(lines))
+    os.replace(tmp, path)
+
+
+def _cost_lines(cost_rows, cost_setup, call_rows, call_setup) -> list[str]:
+    lines = [
         f"## Per-sample cost (demo scene, {cost_setup}, interleaved rounds after compilation)",
         "",
         "Seconds: the samples' own work (a render at spp minus one at spp/4, scaled to spp; a",
@@ -426,7 +502,11 @@ def write_results(path: Path, command: str, variant: str, cost_rows, cost_setup,
         ]
         lines += [f"| {name} | {seconds * 1e3:.1f} | {cost:.2f}x |" for name, seconds, cost in call_rows]
         lines += [""]
-    lines += [
+    return lines
+
+
+def _table_lines(table_rows) -> list[str]:
+    lines = [
         "## Multi-scale tables (plain weave, roughness 0.3, 8x8 visibility directions, 8 clusters)",
         "",
         "| tile | dr | directional SAT | build seconds | memory MiB | of which directional SAT |",
@@ -449,7 +529,13 @@ def write_results(path: Path, command: str, variant: str, cost_rows, cost_setup,
         f"Rank {BENCH_RANK} keeps footprint means within 0.1-1% of the full table (tests/test_precompute.py,",
         "tests/test_multiscale.py); its per-sample cost is in the first table.",
         "",
-        f"## Multi-scale vs brute force (`mscloth compare`, {COMPARE_RES[0]}x{COMPARE_RES[1]}, budget {COMPARE_BUDGET:g} s)",
+    ]
+    return lines
+
+
+def _compare_lines(compare_rows, budget_rows, res, budget) -> list[str]:
+    lines = [
+        f"## Multi-scale vs brute force (`mscloth compare`, {res[0]}x{res[1]}, budget {budget:g} s)",
         "",
         "Equal-error speed-up: time brute force (fibre-level, supersampled) needs to reach the",
         "multi-scale error at its spp, over multi-scale's time. relMSE against a 1024 spp",
@@ -475,11 +561,19 @@ def write_results(path: Path, command: str, variant: str, cost_rows, cost_setup,
     lines += [
         "",
         "Targets (issue 5): speed-up >= 30x in the middle and far regions of plane and sphere;",
-        "multi-scale at 16 spp below brute force at 256 spp there.",
+        "multi-scale at 16 spp below brute force at 256 spp there. Issue 20: >= 30x in the middle",
+        "and far regions of satin, >= 10x there in satin-plane, >= 1x in every region of every",
+        "scene; squared relative bias <= 1e-4 in the middle and far regions of the shiny scenes",
+        "(satin, satin-plane, denim); a multi-scale sample <= 1.5x a brute-force one.",
     ]
+    lines += _summary_lines(compare_rows, budget_rows)
     if budget_rows:
-        lines += _budget_lines(budget_rows, compare_rows)
-    lines += [
+        lines += _budget_lines(budget_rows, compare_rows, res)
+    return lines
+
+
+def _ccv_lines(ccv_rows) -> list[str]:
+    lines = [
         "",
         "## Control-variate bias (footprint eval's expectation vs brute force, relative)",
         "",
@@ -498,7 +592,11 @@ def write_results(path: Path, command: str, variant: str, cost_rows, cost_setup,
         side = (2 * half) ** 2
         cells = " | ".join(f"{e:+.3f} +- {se:.3f}" for e, se in errors)
         lines.append(f"| {side:g} | {wi} | {wo} | {cells} |")
-    lines += [
+    return lines
+
+
+def _maps_lines(maps_seconds) -> list[str]:
+    lines = [
         "",
         "## Map generation (all six maps, best of 3)",
         "",
@@ -512,51 +610,86 @@ def write_results(path: Path, command: str, variant: str, cost_rows, cost_setup,
         "Target (issue 3): a 1024-texel map set in seconds, not minutes, on 2 cores.",
         "",
     ]
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text("\n".join(lines))
-    os.replace(tmp, path)
+    return lines
+
+
+def _scene_list(text: str) -> list[str]:
+    from .scenes.builtin import SCENES
+
+    names = [name.strip() for name in text.split(",") if name.strip()]
+    unknown = [name for name in names if name not in SCENES]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(f"expected comma-separated built-in scenes ({', '.join(SCENES)}), "
+                                         f"got {text!r}")
+    return names
+
+
+def _res_pair(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
+    if not (16 <= w <= 4096 and 16 <= h <= 4096):
+        raise argparse.ArgumentTypeError(f"width and height must be in [16, 4096], got {text!r}")
+    return w, h
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m mscloth.benchmark")
     parser.add_argument("--out", default="bench/RESULTS.md")
-    parser.add_argument("--res", type=int, default=256)
+    parser.add_argument("--res", type=int, default=256, help="per-sample cost: the demo scene's resolution")
     parser.add_argument("--spp", type=int, default=64)
     parser.add_argument("--repeats", type=int, default=9)
+    parser.add_argument("--scenes", type=_scene_list, default=None, metavar="NAME,NAME",
+                        help="built-in scenes of the comparison (default: all); the error budget runs on "
+                             f"those of them among {', '.join(BUDGET_SCENES)}")
+    parser.add_argument("--scenes-only", action="store_true",
+                        help="only the comparison and the error budget (e.g. --scenes satin,satin-plane)")
+    parser.add_argument("--compare-res", type=_res_pair, default=COMPARE_RES, metavar="WxH",
+                        help=f"resolution of the comparison and the error budget (default {COMPARE_RES[0]}x{COMPARE_RES[1]})")
+    parser.add_argument("--compare-budget", type=float, default=COMPARE_BUDGET, metavar="SECONDS",
+                        help=f"`mscloth compare`'s time budget per scene (default {COMPARE_BUDGET:g})")
     args = parser.parse_args(argv)
     if args.spp < 2:
         parser.error(f"--spp must be >= 2 (per-sample cost is a difference of two sample counts), got {args.spp}")
+    if not args.compare_budget > 0:
+        parser.error(f"--compare-budget must be a positive number of seconds, got {args.compare_budget}")
 
     import mitsuba as mi
 
     from . import default_variant, register
+    from .scenes.builtin import SCENES
 
     variant = default_variant()
     mi.set_variant(variant)
     register()
     print(f"benchmark: variant {variant}", flush=True)
-    print(f"per-sample cost, demo scene {args.res}x{args.res} at {args.spp} spp:", flush=True)
-    cost_rows = bench_bsdf_cost(args.res, args.spp, args.repeats)
-    lanes = 1 << 21
-    print(f"the BSDFs alone, {lanes} shading points:", flush=True)
-    call_rows = bench_bsdf_calls(lanes)
-    maps_res = 1024
-    print(f"map generation, {maps_res} texels along u:", flush=True)
-    maps_seconds = bench_map_generation(maps_res, 3)
-    print("multi-scale tables:", flush=True)
-    table_rows = bench_tables()
-    print("control-variate bias:", flush=True)
-    ccv_rows = bench_ccv_bias()
+    cost_rows, call_rows, maps_seconds, table_rows, ccv_rows = [], [], [], [], []
+    lanes, maps_res = 1 << 21, 1024
+    if not args.scenes_only:
+        print(f"per-sample cost, demo scene {args.res}x{args.res} at {args.spp} spp:", flush=True)
+        cost_rows = bench_bsdf_cost(args.res, args.spp, args.repeats)
+        print(f"the BSDFs alone, {lanes} shading points:", flush=True)
+        call_rows = bench_bsdf_calls(lanes)
+        print(f"map generation, {maps_res} texels along u:", flush=True)
+        maps_seconds = bench_map_generation(maps_res, 3)
+        print("multi-scale tables:", flush=True)
+        table_rows = bench_tables()
+        print("control-variate bias:", flush=True)
+        ccv_rows = bench_ccv_bias()
+    scenes = list(SCENES) if args.scenes is None else args.scenes
     print("multi-scale vs brute force (mscloth compare):", flush=True)
-    compare_rows = bench_compare()
+    compare_rows = bench_compare(scenes, args.compare_res, args.compare_budget)
     print("error budget (noise per sample, bias):", flush=True)
-    budget_rows = bench_error_budget()
+    budget_rows = bench_error_budget([name for name in scenes if name in BUDGET_SCENES], args.compare_res)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    write_results(out, "make bench", variant, cost_rows, f"{args.res}x{args.res}, {args.spp} spp",
+    command = "make bench" if argv is None and sys.argv[1:] == ["--out", "bench/RESULTS.md"] else \
+        "python -m mscloth.benchmark " + " ".join(sys.argv[1:] if argv is None else argv)
+    write_results(out, command, variant, cost_rows, f"{args.res}x{args.res}, {args.spp} spp",
                   maps_seconds, maps_res, table_rows, ccv_rows, compare_rows, budget_rows, call_rows,
                   f"{lanes} shading points, footprints of {CALL_FOOTPRINT_TEXELS:g} texels shared by "
-                  f"{CALL_LANES_PER_UV} lanes")
+                  f"{CALL_LANES_PER_UV} lanes", compare_res=args.compare_res, compare_budget=args.compare_budget)
     print(f"wrote {out}")
     return 0
 

@@ -2,8 +2,8 @@
 
 ``$MSCLOTH_CACHE``, else ``~/.cache/mscloth``, holds what mscloth can always make again:
 multi-scale tables (``tables-<key>.npz`` and its ``.json`` sidecar), the brute-force
-references of ``mscloth compare`` (``references/``) and the meshes of built-in scenes
-(``scenes/``). Their keys change with the maps, the parameters and (references) the code,
+references of ``mscloth compare`` (``references/``), and the meshes and cloth maps of
+built-in scenes (``scenes/``: ``<name>-<key>.ply`` files, ``<name>-<key>/`` maps directories). Their keys change with the maps, the parameters and (references) the code,
 so entries nothing reads any more pile up: one 512² tile's full directional SAT is 1 GiB.
 
 A load marks an entry as used (its files' modification time), so
@@ -32,8 +32,14 @@ def default_cache_dir() -> Path:
 # temporaries beside the target, left behind only by a killed process.
 _KINDS = (
     ("tables", "", r"tables-[0-9a-f]{64}", (".npz", ".json")),
-    ("references", "references", r"[a-z0-9_]+-\d+x\d+-\d+spp-[0-9a-f]{16}", (".npz",)),
+    ("references", "references", r"[a-z0-9_][a-z0-9_-]*-\d+x\d+-\d+spp-[0-9a-f]{16}", (".npz",)),
     ("scene meshes", "scenes", r"[a-z0-9_]+-[0-9a-f]{12}", (".ply",)),
+)
+# (kind, sub-directory, entry name pattern) of entries that are directories (every file in
+# one is part of the entry): the maps of built-in scenes, written as
+# ".<name>.<8 random characters>" and renamed when complete (mscloth.scenes.builtin.scene_maps).
+_DIRECTORY_KINDS = (
+    ("scene maps", "scenes", r"[a-z0-9_]+-[0-9a-f]{12}"),
 )
 
 
@@ -48,6 +54,7 @@ class CacheEntry:
     size: int
     last_used: float
     unfinished: bool = False  # a temporary of an interrupted write
+    directory: Path | None = None  # the directory that holds ``paths``, for directory entries
 
 
 def _match(pattern: str, suffixes: tuple[str, ...], filename: str):
@@ -80,11 +87,24 @@ def cache_entries(cache_dir=None) -> list[CacheEntry]:
             stats = [p.stat() for p in paths]
             entries.append(CacheEntry(kind, name, tuple(paths), sum(s.st_size for s in stats),
                                       max(s.st_mtime for s in stats), unfinished))
+    for kind, sub, pattern in _DIRECTORY_KINDS:
+        directory = root / sub
+        if not directory.is_dir():
+            continue
+        for path in sorted(directory.iterdir()):
+            found = _match(pattern, ("",), path.name)
+            if found is None or not path.is_dir():
+                continue
+            paths = tuple(sorted(p for p in path.iterdir() if p.is_file()))
+            stats = [p.stat() for p in paths] or [path.stat()]
+            entries.append(CacheEntry(kind, found[0], paths, sum(s.st_size for s in stats) if paths else 0,
+                                      max(s.st_mtime for s in stats), found[1], path))
     return entries
 
 
 def remove_entries(entries) -> int:
-    """Delete the entries' files (those already gone are skipped); return the bytes freed."""
+    """Delete the entries' files (those already gone are skipped) and the directories of
+    directory entries once empty; return the bytes freed."""
     freed = 0
     for entry in entries:
         for path in entry.paths:
@@ -94,6 +114,11 @@ def remove_entries(entries) -> int:
             except FileNotFoundError:
                 continue
             freed += size
+        if entry.directory is not None:
+            try:
+                entry.directory.rmdir()
+            except OSError:  # gone already, or holds a file written since it was listed
+                pass
     return freed
 
 

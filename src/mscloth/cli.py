@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import inspect
 import os
 import sys
 import time
@@ -144,9 +145,13 @@ def cmd_scene(args) -> int:
     _setup(args.variant)
     out.parent.mkdir(parents=True, exist_ok=True)
     w, h = args.res or (512, 288)
-    kwargs = {"mesh_dir": out.parent / "meshes"} if args.name == "drape" else {}
+    # Meshes and cloth maps next to the XML. Meshes are referenced relatively, so the folder
+    # can be moved; maps directories by absolute path (the cloth BSDF's ``pattern`` is
+    # resolved from the working directory, not the XML's).
+    accepted = inspect.signature(SCENES[args.name]).parameters
+    kwargs = {key: out.parent.resolve() / sub for key, sub in (("mesh_dir", "meshes"), ("maps_dir", "maps"))
+              if key in accepted}
     scene = SCENES[args.name](w, h, **kwargs)
-    # Meshes next to the XML, referenced relatively, so the folder can be moved.
     for node in scene.values():
         if isinstance(node, dict) and node.get("type") == "ply":
             node["filename"] = os.path.relpath(node["filename"], out.parent)
@@ -278,8 +283,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
     demo.set_defaults(func=cmd_demo)
 
-    render = sub.add_parser("render", help="render a built-in scene (plane, sphere, drape) or a Mitsuba XML file")
-    render.add_argument("scene", help="plane, sphere, drape, or a .xml file")
+    render = sub.add_parser("render", help="render a built-in scene (plane, sphere, drape, satin, satin-plane, denim) or a Mitsuba XML file")
+    render.add_argument("scene", help="plane, sphere, drape, satin, satin-plane, denim, or a .xml file")
     render.add_argument("--spp", type=_positive_int(1, 65536), default=64, help="samples per pixel (default 64)")
     render.add_argument("--res", type=_resolution_arg, default=None, help="WIDTHxHEIGHT (default: the scene's)")
     render.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
@@ -287,7 +292,7 @@ def build_parser() -> argparse.ArgumentParser:
     render.set_defaults(func=cmd_render)
 
     scene = sub.add_parser("scene", help="write a built-in scene as Mitsuba XML to start from")
-    scene.add_argument("name", help="plane, sphere or drape")
+    scene.add_argument("name", help="plane, sphere, drape, satin, satin-plane or denim")
     scene.add_argument("--out", required=True, help="output .xml file")
     scene.add_argument("--res", type=_resolution_arg, default=None, help="WIDTHxHEIGHT (default 512x288)")
     scene.add_argument("--force", action="store_true", help="overwrite an existing file")
@@ -309,7 +314,7 @@ def build_parser() -> argparse.ArgumentParser:
     maps.set_defaults(func=cmd_maps)
 
     compare = sub.add_parser("compare", help="multi-scale vs brute-force cloth: equal-error speed-up near, middle, far")
-    compare.add_argument("scene", help="plane, sphere or drape")
+    compare.add_argument("scene", help="plane, sphere, drape, satin, satin-plane or denim")
     compare.add_argument("--budget", default="60", help="render seconds for both convergence curves together (default 60)")
     compare.add_argument("--res", type=_resolution_arg, default=None, help="WIDTHxHEIGHT (default 320x180)")
     compare.add_argument("--json", default=None, help="write the figures as JSON to this file")

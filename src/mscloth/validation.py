@@ -34,15 +34,15 @@ def footprint_interaction(n: int, uv, half_texels: float, tile_texels: int, wi):
 def footprint_expectation(bsdf, uv, half_texels, tile_texels, wi, wo, n=20000, seed=1):
     """(mean, standard error, footprint used?) of the red channel of the footprint eval
     over uniformly placed control-variate residual texels, uniform SAT corner rounding and
-    direction-bin choice."""
+    probe choice, with the footprint shaded whole (the footprint branch, whatever its size)."""
     si = footprint_interaction(n, uv, half_texels, tile_texels, wi)
     enabled = bsdf._enabled(_non_delta_context())
     fr = bsdf._frame(si, True)
     rng = np.random.default_rng(seed)
     xi = mi.Point2f(rng.random(n), rng.random(n))
     xi_round = mi.Point2f(rng.random(n), rng.random(n))
-    u_bin = mi.Float(rng.random(n))
-    st = bsdf._footprint_state(si, fr, enabled, xi, xi_round, u_bin)
+    u_probe = mi.Float(rng.random(n))
+    st = bsdf._footprint_state(si, fr, enabled, xi, xi_round, u_probe)
     value = bsdf._eval_footprint(fr, st, bsdf._mirror(fr, mi.Vector3f(_unit(wo))), enabled)
     v = np.array(value)[0]
     return float(v.mean()), float(v.std() / np.sqrt(n)), bool(np.array(st["fp"]["use"])[0])
@@ -56,5 +56,41 @@ def brute_force(params: dict, uv, half_texels, tile_texels, wi, wo, n=200000, se
     si = dr.zeros(mi.SurfaceInteraction3f, n)
     si.wi = mi.Vector3f(_unit(wi))
     si.uv = mi.Point2f(p[:, 0], p[:, 1])
+    v = np.array(point.eval(_non_delta_context(), si, mi.Vector3f(_unit(wo))))[0]
+    return float(v.mean()), float(v.std() / np.sqrt(n))
+
+
+def sheared_interaction(n: int, uv, a_texels: float, shear: float, tile_texels: int, wi):
+    """``n`` lanes at ``uv`` with the sheared pixel footprint of edges (a, 0) and
+    (shear a, a) texels (uv_scale 1, a tile of ``tile_texels`` texels)."""
+    si = footprint_interaction(n, uv, 0.0, tile_texels, wi)
+    d = a_texels / tile_texels
+    si.duv_dx = mi.Vector2f(d, 0.0)
+    si.duv_dy = mi.Vector2f(shear * d, d)
+    return si
+
+
+def shading_expectation(bsdf, si, wo, seed=3):
+    """(mean, standard error) of the red channel of ``bsdf.eval`` (non-delta lobes) over the
+    lanes of ``si`` with random si.p: what a render averages over a pixel's samples at one
+    uv (the shading point's hash picks the residual texels, the rounding, the probe and,
+    for footprints of a few texels, footprint or fibre-level shading)."""
+    n = dr.width(si)
+    rng = np.random.default_rng(seed)
+    si.p = mi.Point3f(*(mi.Float(rng.random(n) * 10.0) for _ in range(3)))
+    v = np.array(bsdf.eval(_non_delta_context(), si, mi.Vector3f(_unit(wo))))[0]
+    return float(v.mean()), float(v.std() / np.sqrt(n))
+
+
+def parallelogram_brute_force(params: dict, uv, a_texels: float, shear: float, tile_texels: int, wi, wo,
+                              n=200000, seed=2):
+    """(mean, standard error) of the fibre-level BSDF over the sheared footprint of
+    :func:`sheared_interaction`."""
+    point = mi.load_dict(dict(params, multiscale=False))
+    rng = np.random.default_rng(seed)
+    s, t = rng.random(n) - 0.5, rng.random(n) - 0.5
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.wi = mi.Vector3f(_unit(wi))
+    si.uv = mi.Point2f(uv[0] + (s + t * shear) * a_texels / tile_texels, uv[1] + t * a_texels / tile_texels)
     v = np.array(point.eval(_non_delta_context(), si, mi.Vector3f(_unit(wo))))[0]
     return float(v.mean()), float(v.std() / np.sqrt(n))

@@ -17,7 +17,7 @@ from .footprint_data import FootprintData
 from .lobe_calibration import calibrate
 from .lobes import (DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN,
                     SPECULAR_REFLECTION, SPECULAR_TRANSMISSION)
-from .sat_queries import hemisphere_bins, pick_bin, round_box
+from .sat_queries import hemisphere_bins, round_box
 from .parameters import FLOAT_PARAMETERS, SPECTRUM_PARAMETERS, read_parameters
 
 
@@ -121,10 +121,15 @@ back side sees the same maps mirrored through the surface.
      - false
      - Shift lookups to where the view ray meets the height field (Alg. 3); makes
        the BSDF non-reciprocal, hence off by default.
-   * - direction_bins, visibility_bins, clusters
+   * - direction_bins
      - integer
-     - 16, 8, 8
-     - Table sizes of multi-scale shading.
+     - 0
+     - Half-vector bins per side of the directional SAT; 0: from the roughness (16 at 0.2
+       and above, 32 down to 0.08, 48 below), fine enough for the fibres' lobe.
+   * - visibility_bins, clusters
+     - integer
+     - 8, 8
+     - Table sizes of the height-field visibility and its control variates.
    * - direction_rank
      - integer
      - 0
@@ -142,11 +147,16 @@ back side sees the same maps mirrored through the surface.
    * - footprint_slices
      - integer
      - 1
-     - Boxes (1-4) covering the pixel's footprint. 1: its axis-aligned bounding box (the
-       footprint convention). K > 1: K boxes, each the bounding box of a 1/K slice of the
-       sheared parallelogram a perspective camera gives away from the image's centre;
-       closer to brute force near the camera (under a low sun, per-pixel deviation 12% ->
-       6% -> 3.5% for 1, 2, 4) for K times the footprint reads (+30%, +70% per sample).
+     - No longer used (accepted, with a warning, for older scenes): a footprint is the
+       pixel's parallelogram, shaded one probe per sample along its longer edge.
+
+Multi-scale shading takes the pixel footprint as the parallelogram spanned by
+``si.duv_dx`` and ``si.duv_dy`` around ``si.uv``: cut along one edge into at most 8 slices
+(those whose bounding boxes cover least area; one for an axis-aligned rectangle), one slice
+per sample shaded whole as its bounding box. Footprints under 2 texels are shaded fibre level at a point drawn in the
+parallelogram, those over 8 texels whole, and those between by one or the other, with a
+weight linear in the area. Direction bins of the tables are read with their bilinear
+weights.
 
 Sampling picks one lobe by an estimate of its albedo, calibrated when the BSDF is built
 against measured lobe albedos (``bsdf/lobe_calibration.py``; JIT variants), and samples it
@@ -248,7 +258,9 @@ def make_cloth_class():
             self.footprint_shading = p.multiscale
             self.use_visibility = p.visibility
             self.use_parallax = p.parallax
-            self.footprint_slices = p.footprint_slices
+            if p.footprint_slices != 1:
+                mi.Log(mi.LogLevel.Warn, f"cloth ({p.pattern}): footprint_slices is no longer used: footprints are "
+                                         "shaded as the pixel's parallelogram (one probe per sample)")
             self.footprint_data = None
             self.direction_rank = p.direction_rank  # the rank built (see max_table_mib)
             if p.multiscale or p.visibility or p.parallax:
@@ -364,41 +376,83 @@ def make_cloth_class():
             k = _with_yarn_albedo(fr["k"], color)
             return dict(fr, tangent=tangent, yarn=fibre[3], k=k, ix=ix, iy=iy)
 
-        def _footprint(self, si, fr):
-            """The pixel footprint as a texel rectangle, and whether to shade it as one.
+        def _footprint(self, si, fr, u, u_probe=None):
+            """The pixel footprint's probe (a texel box), and whether to shade it as one.
 
-            Convention: the footprint is the axis-aligned UV rectangle centred on si.uv
-            with half-widths 1/2(|du/dx| + |du/dy|) and 1/2(|dv/dx| + |dv/dy|). Footprints
-            whose half-widths are both <= 1/2 texel are shaded fibre level, at a point
-            drawn uniformly in the footprint (``sub_x``, ``sub_y``: their half-widths; zero
-            for a zero footprint, which is exactly the fibre-level BSDF at si.uv); larger
-            ones are at least one texel wide in each direction.
+            Convention (docs/decisions.md): the footprint is the parallelogram spanned by
+            si.duv_dx and si.duv_dy, centred on si.uv. It is cut along one edge into the n
+            slices (n <= ``MAX_PROBES``) whose bounding boxes cover the least area (one for
+            an axis-aligned rectangle; the edge that does better), and one slice,
+            picked by ``u``, is shaded as its axis-aligned bounding box (the probe): as
+            hardware anisotropic filtering does, with the probes taken one per sample. The
+            expected probe is the parallelogram, not its bounding box, at one box's reads.
+
+            Footprints covering fewer than ``POINT_TEXELS`` texels are shaded fibre level at
+            a point drawn uniformly in the parallelogram (exactly the fibre-level BSDF at
+            si.uv for a zero footprint), those over ``FOOTPRINT_TEXELS`` whole, and those
+            between by one or the other, picked by ``u`` with a weight linear in the
+            area: both estimate the same footprint mean, and a footprint of a few texels
+            was noisier than a fibre-level sample. ``u_probe`` (default: ``u`` rescaled
+            within the footprint's share) picks the probe.
             """
-            rx, ry = self._half_widths_texels(si)
-            finite = dr.isfinite(rx) & dr.isfinite(ry)
-            use = (dr.maximum(rx, ry) > 0.5) & finite
-            # Sub-texel half-widths, for the fibre-level branch's position in the footprint.
-            sub_x = dr.select(use | _not(finite), 0.0, rx)
-            sub_y = dr.select(use | _not(finite), 0.0, ry)
-            K = self.footprint_slices
-            centres = [(fr["x"], fr["y"])]
-            if K > 1:
-                # K boxes stacked along one edge of the pixel's parallelogram, each the
-                # bounding box of a 1/K-th slice of it: along whichever edge leaves less
-                # area. An axis-aligned footprint is cut into K exact pieces.
-                (ax, ay), (bx, by) = self._edges_texels(si)
-                rxb, ryb = 0.5 * (dr.abs(ax) + dr.abs(bx) / K), 0.5 * (dr.abs(ay) + dr.abs(by) / K)
-                rxa, rya = 0.5 * (dr.abs(ax) / K + dr.abs(bx)), 0.5 * (dr.abs(ay) / K + dr.abs(by))
-                along_b = rxb * ryb <= rxa * rya
-                rx, ry = dr.select(along_b, rxb, rxa), dr.select(along_b, ryb, rya)
-                step_x = dr.select(use, dr.select(along_b, bx, ax) / K, 0.0)
-                step_y = dr.select(use, dr.select(along_b, by, ay) / K, 0.0)
-                centres = [(fr["x"] + (j + 0.5 - 0.5 * K) * step_x, fr["y"] + (j + 0.5 - 0.5 * K) * step_y)
-                           for j in range(K)]
-            rx = dr.select(use, dr.maximum(rx, 0.5), 0.5)
-            ry = dr.select(use, dr.maximum(ry, 0.5), 0.5)
-            boxes = [(cx - rx, cy - ry, cx + rx, cy + ry) for cx, cy in centres]
-            return dict(use=use, boxes=boxes, sub_x=sub_x, sub_y=sub_y)
+            (ax, ay), (bx, by) = self._edges_texels(si)
+            finite = dr.isfinite(ax) & dr.isfinite(ay) & dr.isfinite(bx) & dr.isfinite(by)
+            la2, lb2 = ax * ax + ay * ay, bx * bx + by * by
+            area = dr.abs(ax * by - ay * bx)
+            length = dr.safe_sqrt(dr.maximum(la2, lb2))
+            # Width across the long edge; a degenerate (line) footprint covers a texel's width.
+            width = area * dr.select(length > 0.0, dr.rcp(length), 0.0)
+            texels = dr.maximum(length, 1.0) * dr.maximum(width, 1.0)
+            p_use = dr.clip((texels - self.POINT_TEXELS) * (1.0 / (self.FOOTPRINT_TEXELS - self.POINT_TEXELS)),
+                            0.0, 1.0)
+            p_use = dr.select(finite & (length > 0.0), p_use, 0.0)
+            # (p_use > 0) first: a zero footprint of constant si.duv_dx/dy is then a literal
+            # False, and the symbolic if traces the fibre-level branch alone.
+            use = (p_use > 0.0) & (u < p_use)
+            if u_probe is None:
+                u_probe = dr.minimum(u * dr.select(p_use > 0.0, dr.rcp(p_use), 0.0), 0.99999994)
+
+            def slicing(l_x, l_y, l2, s_x, s_y):
+                """(n, the n slices' bounding-box area) cutting edge l into n slices: the n
+                that minimises that area, |lx||ly|/n + |lx||sy| + |sx||ly| + n|sx||sy|, at
+                most one per texel of l and MAX_PROBES (1 for an axis-aligned rectangle)."""
+                lxy = dr.abs(l_x * l_y)
+                sxy = dr.abs(s_x * s_y)
+                best = dr.safe_sqrt(lxy * dr.rcp(dr.maximum(sxy, 1e-12)))
+                n = dr.clip(dr.round(dr.minimum(best, dr.safe_sqrt(l2))), 1.0, float(self.MAX_PROBES))
+                box = (dr.abs(l_x) * dr.rcp(n) + dr.abs(s_x)) * (dr.abs(l_y) * dr.rcp(n) + dr.abs(s_y))
+                return n, n * box
+
+            # Slices along whichever edge leaves the probes less area outside the pixel.
+            n_a, cover_a = slicing(ax, ay, la2, bx, by)
+            n_b, cover_b = slicing(bx, by, lb2, ax, ay)
+            along_a = cover_a <= cover_b
+            n = dr.select(along_a, n_a, n_b)
+            lx, ly = dr.select(along_a, ax, bx), dr.select(along_a, ay, by)
+            sx, sy = dr.select(along_a, bx, ax), dr.select(along_a, by, ay)
+            offset = (dr.floor(u_probe * n) + 0.5) * dr.rcp(n) - 0.5
+            cx = fr["x"] + dr.select(finite, offset * lx, 0.0)
+            cy = fr["y"] + dr.select(finite, offset * ly, 0.0)
+            rx = dr.select(finite, dr.maximum(0.5 * (dr.abs(lx) * dr.rcp(n) + dr.abs(sx)), 0.5), 0.5)
+            ry = dr.select(finite, dr.maximum(0.5 * (dr.abs(ly) * dr.rcp(n) + dr.abs(sy)), 0.5), 0.5)
+            # The point branch's parallelogram (zero where not finite: the texel at si.uv).
+            edges = tuple(dr.select(finite, e, 0.0) for e in (ax, ay, bx, by))
+            return dict(use=use, boxes=[(cx - rx, cy - ry, cx + rx, cy + ry)], edges=edges)
+
+        def _point_in_footprint(self, fr, fp, xi):
+            """Texel coordinates of the point ``xi`` (uniform in [0,1)^2) of the footprint's
+            parallelogram, where the fibre-level branch shades."""
+            ax, ay, bx, by = fp["edges"]
+            return (fr["x"] + (xi.x - 0.5) * ax + (xi.y - 0.5) * bx,
+                    fr["y"] + (xi.x - 0.5) * ay + (xi.y - 0.5) * by)
+
+        #: Footprint area (texels) below which shading is fibre level, above which it is the
+        #: footprint's; linear blend between (docs/decisions.md).
+        POINT_TEXELS = 2.0
+        FOOTPRINT_TEXELS = 8.0
+        #: Most probes (slices) across a footprint (more: less overhang of their boxes where
+        #: the pixel is sheared, more variance between them).
+        MAX_PROBES = 8
 
         def _edges_texels(self, si):
             """The pixel footprint's edges si.duv_dx, si.duv_dy in texels of this tile."""
@@ -546,22 +600,23 @@ def make_cloth_class():
                     pdf += probs[DIFFUSE_TRANSMISSION] * dr.select(up, 0.0, diffuse)
             return pdf
 
-        def _footprint_state(self, si, fr, enabled, xi=None, xi_round=None, u_bin=None):
+        def _footprint_state(self, si, fr, enabled, xi=None, xi_round=None, u_probe=None):
             """Everything of the footprint that does not depend on the outgoing direction,
             computed once per shading point and shared by eval, pdf and sample: the SAT
             means over the footprint, the control-variate residual texel, the viewer-side
             visibilities and the sampling mixture.
 
             ``xi`` (2D in [0,1)) places the residual texels, ``xi_round`` rounds the SATs'
-            corners and ``u_bin`` picks the direction bin of D; by default all three are a
-            hash of (si.uv, si.p), so eval is a deterministic function of (si, wo)."""
+            corners and ``u_probe`` picks the probe along the footprint (``_footprint``); by
+            default all three are a hash of (si.uv, si.p), so eval is a deterministic
+            function of (si, wo)."""
             fd = self.footprint_data
             sats = fd.scalar_sats
-            fp = self._footprint(si, fr)
+            hashed = self._hash(si)
             if xi is None:
-                xi, xi_round, u_bin = self._hash(si)
+                xi, xi_round = hashed[:2]
             xi_round = mi.Point2f(0.5, 0.5) if xi_round is None else xi_round
-            u_bin = mi.Float(0.5) if u_bin is None else u_bin
+            fp = self._footprint(si, fr, hashed[2], u_probe)
             # The footprint shaded is its box with the corners rounded stochastically to
             # whole texels (expected extent: the footprint's), and every mean is the exact
             # mean over that rounded box: one SAT read per corner and channel instead of four
@@ -584,7 +639,7 @@ def make_cloth_class():
             def mean(channel):
                 return means[channel]
 
-            st = dict(fp=fp, q=q, inv_area=inv_area, u_bin=u_bin)
+            st = dict(fp=fp, q=q, inv_area=inv_area)
             st["yarn_mean"] = yarn_mean = mean(fd.GAP)
             inv_yarn = dr.select(yarn_mean > 1e-6, dr.rcp(yarn_mean), 0.0)
             if self.uniform_yarn_albedo is not None:
@@ -629,7 +684,7 @@ def make_cloth_class():
             # still helps the transmitted flake lobe (docs/decisions.md).
             probs = st["fp_probs"]
             yarn_share = probs[SPECULAR_REFLECTION] + probs[DIFFUSE_REFLECTION] + probs[DIFFUSE_TRANSMISSION]
-            st["eps_c"] = eps_c = dr.select(fp["use"], self.DEFENSIVE_COSINE * dr.sqrt(yarn_share), 0.0)
+            st["eps_c"] = eps_c = self.DEFENSIVE_COSINE * dr.sqrt(yarn_share)
             # Its lower (transmission) share follows the diffuse lobes' split, at least a
             # tenth on either side: at grazing angles a fixed half wasted 5% of samples.
             p_dr, p_dt = probs[DIFFUSE_REFLECTION], probs[DIFFUSE_TRANSMISSION]
@@ -643,6 +698,11 @@ def make_cloth_class():
             texels by ``xi_round`` (the box that is shaded), and their SAT queries."""
             boxes = [round_box(*box, xi_round.x, xi_round.y) for box in fp["boxes"]]
             return boxes, [self.footprint_data.scalar_sats.query_on_grid(*box) for box in boxes]
+
+        @staticmethod
+        def _table_tangent(fr, tangent):
+            """A texel's tangent (mirrored frame) back in the maps' frame of the tables."""
+            return mi.Vector3f(tangent.x, tangent.y, fr["sign"] * tangent.z)
 
         def _mean_sigma(self, st, w):
             """sigma(w) of the footprint's mean SGGX matrix S = I - (1 - alpha^2) <t t^T>."""
@@ -679,10 +739,11 @@ def make_cloth_class():
                 # z, so a viewer below looks up the mirror image of h (then folded up again).
                 h_table = mi.Vector3f(h.x, h.y, fr["sign"] * h.z)
                 h_table = dr.select(h_table.z < 0.0, -h_table, h_table)
-                # One of the four bins around h, picked with its bilinear weight: the
-                # expected lookup is the bilinear one, at a quarter of the reads.
-                bin_h = pick_bin(*hemisphere_bins(h_table, fd.dr), st["u_bin"])
-                d_yarn = sum(fd.d_integral(q_, bin_h) for q_ in st["q"]) * st["inv_area"]  # mean over P of D I
+                # The four bins around h with their bilinear weights, deterministically: a
+                # random pick of one (a quarter of the reads) was most of the estimator's own
+                # noise on shiny cloth near and in the middle distance (docs/decisions.md).
+                bins_h = hemisphere_bins(h_table, fd.dr)
+                d_yarn = sum(fd.d_integral(q_, *bins_h) for q_ in st["q"]) * st["inv_area"]  # mean over P of D I
                 # f_rs per unit D: G of the footprint's mean SGGX matrix (g_bar), and of each
                 # residual texel's own tangent (g_k). The residual corrects mean(D) g_bar
                 # towards mean(D g), which differ where D and the tangent correlate (grazing
@@ -692,6 +753,10 @@ def make_cloth_class():
 
                 g_bar = g_of(self._mean_sigma(st, wi), self._mean_sigma(st, wo))
                 d_k = [sggx.ndf(h, t_["tangent"], self.roughness) * t_["yarn"] for t_ in texels]
+                # The same texels' D as the tables bin it (tangents in the tables' frame): the
+                # control variate that removes the bins' bias from the base.
+                dbin_k = [fd.binned_ndf(*bins_h, self._table_tangent(fr, t_["tangent"]), self.roughness) * t_["yarn"]
+                          for t_ in texels]
                 g_k = [g_of(sggx.projected_area(wi, t_["tangent"], self.roughness),
                             sggx.projected_area(wo, t_["tangent"], self.roughness)) for t_ in texels]
                 if self.use_visibility:
@@ -700,14 +765,14 @@ def make_cloth_class():
                     if fd.per_cluster:
                         base = mi.Float(0.0)
                         for c in range(fd.clusters):
-                            base += st["cvis_i"][c] * cvis_o[c] * sum(fd.d_integral(q_, bin_h, c) for q_ in st["q"])
+                            base += st["cvis_i"][c] * cvis_o[c] * sum(fd.d_integral(q_, *bins_h, c) for q_ in st["q"])
                         base *= st["inv_area"]
                     elif fd.d_cluster_tile is not None:
                         # Each cluster's visibility weighted by its share of the footprint's D:
                         # its share of the footprint times its mean D over the tile. Exact for
                         # footprints of whole tiles; Alg. 4's texel_mean (the fallback) is off
                         # by -Cov(D, v) at every size (docs/decisions.md).
-                        m_c = fd.cluster_d_means(bin_h)
+                        m_c = fd.cluster_d_means(*bins_h)
                         num = mi.Float(0.0)
                         den = mi.Float(0.0)
                         for c in range(fd.clusters):
@@ -718,16 +783,16 @@ def make_cloth_class():
                     else:
                         base = d_yarn * texel_mean
                     residual = mi.Float(0.0)
-                    for d, g, v, vbar in zip(d_k, g_k, v_p, vbar_p):
-                        residual += d * (v * g - vbar * g_bar)
+                    for d, db, g, v, vbar in zip(d_k, dbin_k, g_k, v_p, vbar_p):
+                        residual += d * v * g - db * vbar * g_bar
                     # An unbiased control-variate estimate: it can dip below zero for the
                     # residual texels (V(p) = 0 under a bright base); clamping it biased
                     # grazing highlights by up to +90% (docs/decisions.md), so we do not.
                     spec = base * g_bar + 0.25 * residual
                 else:
                     residual = mi.Float(0.0)
-                    for d, g in zip(d_k, g_k):
-                        residual += d * (g - g_bar)
+                    for d, db, g in zip(d_k, dbin_k, g_k):
+                        residual += d * g - db * g_bar
                     spec = d_yarn * g_bar + 0.25 * residual
                 if enabled[SPECULAR_REFLECTION]:
                     reflection += k["specular_albedo"] * yarn_albedo * spec
@@ -800,12 +865,13 @@ def make_cloth_class():
 
         def _hash(self, si):
             """Deterministic pseudo-random numbers per shading point, from si.uv and si.p:
-            (xi, xi_round, u_bin), two 2D points and one number: the stratified texels, the
-            SAT rounding and the direction-bin choice of the footprint (or xi: the point in
-            a sub-texel footprint), in eval(), where Mitsuba passes no random numbers. si.p
+            (xi, xi_round, u), two 2D points and one number: the stratified texels, the
+            SAT rounding, and the choice between footprint and fibre-level shading and of the
+            probe (``_footprint``; xi: the point of fibre-level shading in the footprint),
+            in eval(), where Mitsuba passes no random numbers. si.p
             varies between the samples of one pixel, whose footprints ``clothpath`` centres
             on the same uv. Two TEAs (~40 ops each): four words give the points their top
-            24 bits each, and u_bin the words' low bytes."""
+            24 bits each, and u the words' low bytes."""
             def bits(x):  # 24 bits of a float's fractional part
                 return mi.UInt32((x - dr.floor(x)) * 16777216.0)
 
@@ -867,9 +933,7 @@ def make_cloth_class():
             it), for the mirrored directions ``wos`` and, if given, one sample."""
             x, y = fr["x"], fr["y"]
             if fp is not None:
-                xi = self._hash(si)[0]
-                x = x + (2.0 * xi.x - 1.0) * fp["sub_x"]
-                y = y + (2.0 * xi.y - 1.0) * fp["sub_y"]
+                x, y = self._point_in_footprint(fr, fp, self._hash(si)[0])
             pt = self._texel(fr, x, y)
             if self.use_visibility and self.footprint_data is not None:
                 # The texel's visibility bits, read once for every direction below.
@@ -973,7 +1037,7 @@ def make_cloth_class():
             if not self.multiscale:
                 values, pdfs, record = self._point_branch(si, fr, enabled, wos, samples, active)
             else:
-                fp = self._footprint(si, fr)
+                fp = self._footprint(si, fr, self._hash(si)[2])
                 values, pdfs, record = _branch(
                     fp["use"], (si, wos, samples),
                     true_fn=lambda: self._footprint_branch(si, fr, enabled, wos, samples, active),
@@ -1007,27 +1071,29 @@ def make_cloth_class():
         def gap_transmission(self, si, active=True):
             """Fraction of light crossing the cloth straight along -si.wi through its gaps:
             T_sheen(i)^2 (1 - I), with I the yarn coverage of the footprint in
-            si.duv_dx/dy (multi-scale) or of the texel (used by clothpath's shadow rays).
+            si.duv_dx/dy (multi-scale; below 8 texels, possibly of the texel at the point
+            fibre-level shading takes) or of the texel (used by clothpath's shadow rays).
             The footprint's I is its mean over the stochastically rounded box, the one the
             footprint BSDF shades: the crossing lets through what the BSDF's gap lobe
             does at the same point."""
             fr = self._frame(si, active)
-
-            def texel_yarn():
-                return self._texel(fr, fr["x"], fr["y"])["yarn"]
+            xi, xi_round, u = self._hash(si)
 
             if not self.multiscale:
-                yarn = texel_yarn()
+                yarn = self._texel(fr, fr["x"], fr["y"])["yarn"]
             else:
-                fp = self._footprint(si, fr)
+                fp = self._footprint(si, fr, u)
                 sats = self.footprint_data.scalar_sats
+
+                def texel_yarn():  # at the point the fibre-level branch shades
+                    return self._texel(fr, *self._point_in_footprint(fr, fp, xi))["yarn"]
 
                 def footprint_yarn():
                     # One read per corner of the rounded box (exact corners took four, and
                     # were most of what a shadow ray crossing cloth cost). Its mean stays in
                     # [0, 1]: over the exact area it did not, and the clip below then let
                     # light through gap-free footprints (docs/decisions.md).
-                    _, q = self._rounded_boxes(fp, self._hash(si)[1])
+                    _, q = self._rounded_boxes(fp, xi_round)
                     covered = sum(sats.integral(q_, self.footprint_data.GAP) for q_ in q)
                     return covered / sum(q_.area for q_ in q)
 

@@ -51,6 +51,11 @@ class FootprintData:
         self.d_cluster_tile = flat_array(tile) if with_sats and tile is not None else None
         if with_sats:
             self.d_sat = ResidualSATs(tables.d_sat, tables.d_mean)
+            # The bins' centre directions (x, y, z, 0): one packet read each, for the binned
+            # D of a single texel (the control variate of the residual texels).
+            from ..precompute.direction_bins import bin_centres
+            centres = bin_centres(self.dr)
+            self.bin_centres = flat_array(np.concatenate([centres, np.zeros((len(centres), 1))], axis=1))
             # gap, moments (6), cluster histogram (k), albedo (3): one buffer, channel offsets.
             # Albedo last: uniformly coloured yarns read the channels before it alone.
             sats = [tables.gap_sat, tables.moment_sat, tables.cluster_sat, tables.albedo_sat]
@@ -71,25 +76,59 @@ class FootprintData:
                 self.d_sat_cluster = ResidualSATs(np.asarray(tables.d_sat_cluster).reshape(k * b, self.H + 1, self.W + 1),
                                                   np.ravel(tables.d_cluster_mean))
 
-    def d_integral(self, q, bin_h, cluster=None):
-        """The integral of D(h_b, t) I over query ``q``'s rectangle for direction bin
-        ``bin_h``: one channel of the directional SAT, or for the rank-K table its K
-        coefficient channels weighted by the bin's basis row. ``cluster``: over that
-        visibility cluster's texels only (the per-cluster tables)."""
+    def d_integral(self, q, bins, weights, cluster=None):
+        """The integral of D(h, t) I over query ``q``'s rectangle, interpolated bilinearly
+        between the direction ``bins`` around h with their ``weights``
+        (:func:`.sat_queries.hemisphere_bins`): four channels of the full directional SAT,
+        or for the rank-K table its K coefficient channels weighted by the bins' mixed
+        basis row (four basis reads, one SAT read). ``cluster``: over that visibility
+        cluster's texels only (the per-cluster tables)."""
         sats = self.d_sat if cluster is None else self.d_sat_cluster
         offset = 0 if cluster is None else cluster * self.d_sat.channels
         if not self.d_rank:
-            return sats.integral(q, offset + bin_h)
-        K = self.d_rank
-        coef = gather_block(self.d_basis, bin_h * K, K)
+            total = mi.Float(0.0)
+            for b, w in zip(bins, weights):
+                total += w * sats.integral(q, offset + b)
+            return total
+        coef = self.d_basis_row(bins, weights)
         total = mi.Float(0.0)
-        for c, v in zip(coef, sats.integrals(q, offset, K)):
+        for c, v in zip(coef, sats.integrals(q, offset, self.d_rank)):
             total += c * v
         return total
 
-    def cluster_d_means(self, bin_h):
-        """Each visibility cluster's mean of D(h_b, t) I over the tile for bin ``bin_h``."""
-        return gather_block(self.d_cluster_tile, bin_h * self.clusters, self.clusters)
+    def d_basis_row(self, bins, weights):
+        """The rank-K basis row of direction h: the rows of its four ``bins`` mixed with
+        their bilinear ``weights`` (K values per lane)."""
+        K = self.d_rank
+        row = [mi.Float(0.0) for _ in range(K)]
+        for b, w in zip(bins, weights):
+            for k, c in enumerate(gather_block(self.d_basis, b * K, K)):
+                row[k] += w * c
+        return row
+
+    def binned_ndf(self, bins, weights, tangent, alpha):
+        """D(h, t) I of one texel as the tables hold it: the fibre NDF of ``tangent`` at the
+        centres of the direction ``bins`` around h, mixed with their bilinear ``weights``.
+        Its footprint mean is what :meth:`d_integral` reads (up to rank compression), so the
+        residual texels take it as their control variate: the footprint estimate is then
+        free of the bins' bias whatever their size, at the price of more variance where
+        the bins are coarse for the lobe."""
+        from ..scattering import sggx
+
+        total = mi.Float(0.0)
+        for b, w in zip(bins, weights):
+            c = gather_block(self.bin_centres, b * 4, 4)
+            total += w * sggx.ndf(mi.Vector3f(c[0], c[1], c[2]), tangent, alpha)
+        return total
+
+    def cluster_d_means(self, bins, weights):
+        """Each visibility cluster's mean of D(h, t) I over the tile, bilinear between the
+        direction ``bins`` around h."""
+        out = [mi.Float(0.0) for _ in range(self.clusters)]
+        for b, w in zip(bins, weights):
+            for c, v in enumerate(gather_block(self.d_cluster_tile, b * self.clusters, self.clusters)):
+                out[c] += w * v
+        return out
 
     # Channel offsets inside scalar_sats (ALBEDO, after the k cluster channels: per instance).
     GAP, MOMENTS, CLUSTERS = 0, 1, 7

@@ -37,14 +37,16 @@ SPECTRUM_PARAMETERS = {
 
 #: Switches and table sizes of multi-scale shading: name -> (default, low, high, meaning).
 INT_PARAMETERS = {
-    "direction_bins": (16, 4, 64, "half-vector bins per side of the directional SAT (dr)"),
+    "direction_bins": (0, 0, 64, "half-vector bins per side of the directional SAT (dr; 0: from the "
+                                 "roughness, 16 at 0.2 and above, 32 down to 0.08, 48 below)"),
     "visibility_bins": (8, 2, 32, "direction bins per side of the visibility tables"),
     "clusters": (8, 1, 32, "visibility clusters for the control variates"),
     "direction_rank": (0, 0, 4096, "rank of the compressed directional SAT (0: full, dr^2 channels, "
                                    "or rank 64 over max_table_mib)"),
     "max_table_mib": (256, 16, 1 << 20, "memory budget (MiB) of a full directional SAT; larger ones "
                                         "are compressed to rank 64"),
-    "footprint_slices": (1, 1, 4, "boxes that cover a sheared pixel footprint (1: its bounding box)"),
+    # Accepted for scenes written before footprints were shaded as the pixel's parallelogram.
+    "footprint_slices": (1, 1, 4, "no longer used: footprints are the pixel's parallelogram"),
 }
 BOOL_PARAMETERS = {
     "multiscale": (True, "shade whole pixel footprints (summed-area tables + CCV)"),
@@ -69,7 +71,7 @@ class ClothParameters:
     visibility: bool = True
     unbiased_ccv: bool = False
     parallax: bool = False
-    direction_bins: int = 16
+    direction_bins: int = 0
     visibility_bins: int = 8
     clusters: int = 8
     direction_rank: int = 0
@@ -180,6 +182,12 @@ def read_parameters(props) -> ClothParameters:
                                  f"[{low}, {high}], got {value!r}")
         switches[name] = value
 
+    if switches["direction_bins"] == 0:
+        from ..precompute.direction_bins import bins_for_roughness
+        switches["direction_bins"] = bins_for_roughness(floats["roughness"])
+    elif switches["direction_bins"] < 4:
+        raise ParameterError(f"cloth: parameter 'direction_bins' must be 0 (from the roughness) or in [4, 64], "
+                             f"got {switches['direction_bins']}")
     bins = switches["direction_bins"] ** 2
     if switches["direction_rank"] > bins:
         raise ParameterError(f"cloth: parameter 'direction_rank' must be at most direction_bins^2 = {bins} "

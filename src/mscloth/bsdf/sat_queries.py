@@ -242,15 +242,3 @@ def hemisphere_bins(w, n: int):
     bins = (b0 * n + a0, b0 * n + a1, b1 * n + a0, b1 * n + a1)
     weights = ((1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy)
     return bins, weights
-
-
-def pick_bin(bins, weights, u):
-    """One of ``bins``, bin j with probability weights[j] (they sum to 1), for ``u``
-    uniform in [0, 1): reading the chosen bin alone is an unbiased stand-in for the
-    weighted mix of all of them."""
-    chosen = bins[0]
-    edge = weights[0]
-    for b, w in zip(bins[1:], weights[1:]):
-        chosen = dr.select(u >= edge, b, chosen)
-        edge = edge + w
-    return chosen

@@ -1,0 +1,110 @@
+"""The footprint BSDF of shiny cloth against brute force (issue 20): roughness 0.05-0.2,
+near-specular and grazing pairs, reflection and transmission, footprints from 2 texels to
+3 tiles, square and sheared; sampling by chi2 at roughness 0.1.
+
+Brute force is the Monte Carlo mean of the fibre-level BSDF over the same footprint
+(:mod:`mscloth.validation`). The footprint estimate's residual texels take each texel's
+binned D as their control variate, so the direction bins leave no bias; what remains is
+the stated approximation below (float32 SATs, the footprint's probe boxes)."""
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import mscloth
+from mscloth import validation
+
+from cloth_fixtures import N_TEXELS, direction, footprint_chi2_adapter, non_delta_context
+
+mscloth.register()
+
+#: A shiny satin on a 128^2 tile (16 texels per thread, as the `satin` scene's).
+SATIN = {"type": "cloth", "pattern": "satin-8-3", "resolution": N_TEXELS, "thickness": 2.0,
+         "specular_albedo": 0.8, "specular_transmittance": 0.3, "diffuse_albedo": 0.1,
+         "diffuse_transmittance": 0.05, "sheen_thickness": 0.1}
+
+#: (wi, wo): near-specular at normal incidence, grazing across and along the warp (a low
+#: sun), and transmission.
+PAIRS = {
+    "near-specular": ([0.3, 0.1, 0.95], [-0.3, -0.1, 0.95]),
+    "grazing-across": ([0.95, 0.1, 0.3], [-0.9, 0.2, 0.35]),
+    "grazing-along": ([0.1, 0.95, 0.3], [0.2, -0.9, 0.35]),
+    "transmission": ([0.2, 0.4, 0.89], [-0.3, -0.2, -0.93]),
+}
+
+#: Half-widths in texels: footprints of 2 texels, 8^2, 48^2 and 3 tiles.
+HALVES = [0.71, 4.0, 24.0, 1.5 * N_TEXELS]
+
+#: The stated approximation of the footprint form (relative), beside 5 standard errors.
+APPROXIMATION = 0.02
+
+
+def check(params, half, pair, n_ms=40000, n_bf=60000, shear=None):
+    """The BSDF's eval averaged over shading points (random si.p: the hash picks residual
+    texels, rounding, probe, and for a few texels footprint or fibre-level shading) against
+    brute force over the square footprint of half-width ``half`` texels, or the sheared one
+    of edges (half, 0) and (shear half, half)."""
+    bsdf = mi.load_dict(params)
+    wi, wo = PAIRS[pair]
+    uv = [0.3, 0.55]
+    if shear is None:
+        si = validation.footprint_interaction(n_ms, uv, half, N_TEXELS, wi)
+        bf, bf_err = validation.brute_force(params, uv, half, N_TEXELS, wi, wo, n=n_bf)
+    else:
+        si = validation.sheared_interaction(n_ms, uv, half, shear, N_TEXELS, wi)
+        bf, bf_err = validation.parallelogram_brute_force(params, uv, half, shear, N_TEXELS, wi, wo, n=n_bf)
+    ms, ms_err = validation.shading_expectation(bsdf, si, wo)
+    tolerance = 5.0 * np.hypot(ms_err, bf_err) + APPROXIMATION * abs(bf)
+    assert abs(ms - bf) <= tolerance, (pair, half, ms, bf, tolerance)
+
+
+@pytest.mark.parametrize("roughness", [0.05, 0.1, 0.2])
+@pytest.mark.parametrize("half", HALVES)
+@pytest.mark.parametrize("pair", list(PAIRS))
+def test_shiny_footprint_matches_brute_force_without_visibility(roughness, half, pair):
+    """Without the height field's visibility the footprint form is exact up to float32
+    tables: the binned D's bias is removed by the residual texels' control variate."""
+    check(dict(SATIN, roughness=roughness, visibility=False), half, pair)
+
+
+@pytest.mark.parametrize("half", [4.0, 1.5 * N_TEXELS])
+@pytest.mark.parametrize("pair", ["near-specular", "grazing-across", "transmission"])
+def test_shiny_footprint_matches_brute_force_with_visibility(half, pair):
+    """With visibility and the per-cluster control-variate base (``unbiased_ccv``), at
+    roughness 0.1. The default base is biased at grazing angles below a tile (bench/RESULTS.md)."""
+    roughness = 0.1
+    check(dict(SATIN, roughness=roughness, unbiased_ccv=True), half, pair)
+
+
+@pytest.mark.parametrize("roughness", [0.05, 0.1, 0.2])
+@pytest.mark.parametrize("a,shear", [(10.0, 0.8), (6.0, 3.0)])
+@pytest.mark.parametrize("pair", ["near-specular", "grazing-along"])
+def test_sheared_shiny_footprint_matches_brute_force_over_the_parallelogram(roughness, a, shear, pair):
+    """Sheared pixels: the footprint's probes average to the parallelogram, not its bounding
+    box (a probe is a slice's bounding box: the stated approximation covers its overhang)."""
+    check(dict(SATIN, roughness=roughness, visibility=False), a, pair, shear=shear)
+
+
+def test_chi2_footprint_sampling_of_shiny_cloth():
+    params = dict(SATIN, roughness=0.1)
+    for wi, half in ((direction(30, 40), 6.0), (direction(75, 10), 40.0)):
+        sample_func, pdf_func = footprint_chi2_adapter(params, wi, [0.3, 0.55], non_delta_context(), half)
+        test = mi.chi2.ChiSquareTest(domain=mi.chi2.SphericalDomain(), sample_func=sample_func, pdf_func=pdf_func,
+                                     sample_dim=3, seed=17, sample_count=1_000_000, res=100, ires=16)
+        assert test.run(significance_level=0.01, test_count=2), test.messages
+
+
+def test_footprint_eval_variance_of_shiny_cloth_stays_below_a_fibre_level_sample():
+    """A regression guard, not issue 20's target (1/100 at >= 256 texels, not reached:
+    bench/RESULTS.md): one footprint evaluation of the satin at roughness 0.1 over 48^2
+    texels and over 3 tiles has at most a fifth of the variance of one fibre-level sample
+    of the same footprint, without visibility (the residual texels' binned-D control
+    variate at 32 bins)."""
+    params = dict(SATIN, roughness=0.1, visibility=False)
+    bsdf = mi.load_dict(params)
+    for half in (24.0, 1.5 * N_TEXELS):
+        for pair in ("near-specular", "grazing-along"):
+            wi, wo = PAIRS[pair]
+            n = 20000
+            _, ms_err, _ = validation.footprint_expectation(bsdf, [0.3, 0.55], half, N_TEXELS, wi, wo, n=n)
+            _, bf_err = validation.brute_force(params, [0.3, 0.55], half, N_TEXELS, wi, wo, n=n)
+            assert ms_err ** 2 <= 0.2 * bf_err ** 2, (half, pair, (ms_err / bf_err) ** 2)
