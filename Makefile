@@ -15,6 +15,7 @@ test:
 
 bench: setup
 	$(PY) -m mscloth.benchmark --out bench/RESULTS.md
+	$(PY) bench/footprint_estimator.py --set resolution=128 --out bench/RESULTS.md
 
 clean:
 	rm -rf out .pytest_cache

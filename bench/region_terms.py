@@ -78,8 +78,12 @@ def main(argv=None) -> int:
     parser.add_argument("--res", default="320x180")
     args = parser.parse_args(argv)
     sys.path.insert(0, "src")
-    from mscloth.compare import REGIONS, _setup_mitsuba
-    _setup_mitsuba()
+    import mitsuba as mi
+
+    import mscloth
+    from mscloth.compare import REGIONS
+    mi.set_variant(mscloth.default_variant())
+    mscloth.register()
     width, height = (int(v) for v in args.res.split("x"))
     print(f"| {args.scene} variant | region | noise per sample, sun | noise per sample, sun + sky | bias^2 |")
     print("|---|---|---|---|---|")
