@@ -309,16 +309,14 @@ def bench_compare(scenes=None, res=COMPARE_RES, budget: float = COMPARE_BUDGET,
 BUDGET_SCENES = ("plane", "sphere", "satin", "satin-plane", "denim")
 
 
-def bench_error_budget(scenes=BUDGET_SCENES, res=COMPARE_RES, slices=(1,), **kw) -> list[tuple[str, dict]]:
+def bench_error_budget(scenes=BUDGET_SCENES, res=COMPARE_RES, **kw) -> list[tuple[str, dict]]:
     """:func:`mscloth.error_budget.error_budget` of ``scenes`` at compare's setting (``kw``:
-    its sample counts, for quick runs). Multi-scale's bias with the default
-    ``footprint_slices`` only: footprints are the pixel's parallelogram now, and cloth no
-    longer uses more slices."""
+    its sample counts, for quick runs)."""
     from .error_budget import error_budget
 
     rows = []
     for name in scenes:
-        rows.append((name, error_budget(name, *res, slices=slices, quiet=True, **kw)))
+        rows.append((name, error_budget(name, *res, quiet=True, **kw)))
         print(f"  {name}: done", flush=True)
     return rows
 
@@ -340,8 +338,8 @@ def _summary_lines(compare_rows, budget_rows) -> list[str]:
         "",
         "## Per scene and region: speed-up, bias, noise, time",
         "",
-        "Equal-error speed-up (above); multi-scale's squared relative bias b^2 (default",
-        "`footprint_slices`); noise per sample v = relMSE x spp with the scene's sun and sky, both",
+        "Equal-error speed-up (above); multi-scale's squared relative bias b^2; noise per",
+        "sample v = relMSE x spp with the scene's sun and sky, both",
         "methods; time per sample t: milliseconds per spp of the whole frame (multi-scale at its",
         "spp, brute force at the same spp). With n = multi-scale's spp, the speed-up is about",
         "[v_bf / (b^2 + v_ms / n)] / n x t_bf / t_ms (DESIGN 4.6); the noise-only speed-up is it",

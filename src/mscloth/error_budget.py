@@ -9,9 +9,9 @@ The equal-error speed-up of multi-scale over brute-force shading is bounded by t
   lighting and with the sun or the sky alone. Multi-scale shading removes the noise of the
   weave (visible under the sun); the noise of sampling the sky's directions is there for
   both methods.
-* **Bias.** Multi-scale shading is not brute force: its footprint is the axis-aligned box
-  around the pixel (the footprint convention), larger than the pixel's sheared
-  parallelogram, and its tables bin directions. The squared bias per region is estimated
+* **Bias.** Multi-scale shading is not brute force: its footprint probes overhang the
+  pixel's parallelogram, its default control-variate base approximates each visibility
+  cluster's share of D, and each sample shades the footprint at its own normal. The squared bias per region is estimated
   from two independent halves of a high-spp render against the reference.
 
 With noise alone (no bias), the equal-error speed-up would be
@@ -83,12 +83,12 @@ NOISE_RENDERS, NOISE_SPP, BIAS_SPP = 8, 4, 256
 
 
 def error_budget(name: str, width: int, height: int, noise_renders: int = NOISE_RENDERS,
-                 noise_spp: int = NOISE_SPP, bias_spp: int = BIAS_SPP, slices=(1, 4), reference_spp: int = 1024,
+                 noise_spp: int = NOISE_SPP, bias_spp: int = BIAS_SPP, reference_spp: int = 1024,
                  quiet: bool = False) -> dict:
     """Per region of scene ``name``: per-sample noise of both methods under each lighting
-    case (``noise``: {method: {light: value}}), and the squared bias of multi-scale with each
-    ``footprint_slices`` value and of brute force (``bias``: {label: value}, in that order),
-    all in relMSE units against ``compare``'s cached reference."""
+    case (``noise``: {method: {light: value}}), and the squared bias of each method with the
+    scene's lights (``bias``: {"multiscale": value, "bruteforce": value}), all in relMSE
+    units against ``compare``'s cached reference."""
     from .compare import _setup_mitsuba, depth_and_cloth, reference_image, region_masks, timed_render
 
     _setup_mitsuba()
@@ -102,13 +102,6 @@ def error_budget(name: str, width: int, height: int, noise_renders: int = NOISE_
     def render(scene, spp, seed):
         return timed_render(scene, spp, seed).image
 
-    def measure_bias(scene, label):
-        a, b = (render(scene, bias_spp // 2, seed) for seed in BIAS_SEEDS)
-        bias[label] = per_region(squared_bias(a, b, ref, ref_var))
-        say(f"  {name} {label}: squared bias " + ", ".join(f"{g} {bias[label][g]:.3g}" for g in REGIONS))
-
-    # Bias cases: (label, multi-scale?, footprint_slices or None for brute force).
-    cases = [(f"multiscale, footprint_slices {k}", True, k) for k in slices] + [("bruteforce", False, None)]
     noise = {"multiscale": {}, "bruteforce": {}}
     bias = {}
     for method, multiscale in (("multiscale", True), ("bruteforce", False)):
@@ -119,18 +112,13 @@ def error_budget(name: str, width: int, height: int, noise_renders: int = NOISE_
             say(f"  {name} {method} {light}: per-sample noise "
                 + ", ".join(f"{g} {noise[method][light][g]:.3g}" for g in REGIONS))
             if light == "both":  # the scene as the benchmark shades it: its bias too
-                for label, ms, k in cases:
-                    if ms == multiscale and k in (None, 1):  # 1: the default footprint_slices
-                        measure_bias(scene, label)
-            del scene
-    for label, _, k in cases:
-        if label not in bias:
-            scene = _scene(name, width, height, True, footprint_slices=k)
-            measure_bias(scene, label)
+                a, b = (render(scene, bias_spp // 2, seed) for seed in BIAS_SEEDS)
+                bias[method] = per_region(squared_bias(a, b, ref, ref_var))
+                say(f"  {name} {method}: squared bias " + ", ".join(f"{g} {bias[method][g]:.3g}" for g in REGIONS))
             del scene
     gc.collect()
     return {g: {"noise": {m: {light: noise[m][light][g] for light in LIGHTS} for m in noise},
-                "bias": {label: bias[label][g] for label, _, _ in cases}} for g in REGIONS}
+                "bias": {m: bias[m][g] for m in bias}} for g in REGIONS}
 
 
 def noise_only_speedup(noise: dict, seconds_ratio: float) -> float:
