@@ -66,23 +66,10 @@ def main(argv=None) -> int:
     parser.add_argument("--out", help="also append the Markdown table to this file")
     args = parser.parse_args(argv)
 
-    sys.path.insert(0, "src")
-    import mitsuba as mi
-
-    import mscloth
-    mi.set_variant(mscloth.default_variant())
-    mscloth.register()
-
-    extra = {}
-    for item in args.attr:  # class attributes of the cloth BSDF (experiments)
-        key, value = item.split("=", 1)
-        from mscloth.bsdf.registry import cloth_class
-        setattr(cloth_class(), key, eval(value))
-    for item in args.set:
-        key, value = item.split("=", 1)
-        extra[key] = {"true": True, "false": False}.get(value.lower(), None)
-        if extra[key] is None:
-            extra[key] = float(value) if "." in value else int(value)
+    from common import parse_settings, set_class_attributes, setup_mitsuba
+    mi = setup_mitsuba()
+    set_class_attributes(parse_settings(args.attr))
+    extra = parse_settings(args.set)
     lines = [f"## Footprint estimator vs brute force ({time.strftime('%Y-%m-%d')}, {mi.variant()})", "",
              f"Command: `bench/footprint_estimator.py {' '.join(argv or sys.argv[1:])}` (a dense "
              "`satin-8-3`; one footprint evaluation's expectation and variance over its random "

@@ -14,25 +14,16 @@ import argparse
 import shlex
 import sys
 
-
-def _value(text: str):
-    lowered = text.lower()
-    if lowered in ("true", "false"):
-        return lowered == "true"
-    try:
-        return int(text)
-    except ValueError:
-        return float(text)
+from common import parse_settings, set_class_attributes, setup_mitsuba
 
 
 def parse_variant(spec: str):
     """'LABEL: --attr A=1 --set b=2' -> (label, {attr: value}, {param: value})."""
     label, _, rest = spec.partition(":")
-    attrs, params = {}, {}
     words = shlex.split(rest)
-    for flag, item in zip(words[::2], words[1::2]):
-        key, value = item.split("=", 1)
-        (attrs if flag == "--attr" else params)[key] = _value(value)
+    pairs = list(zip(words[::2], words[1::2]))
+    attrs = parse_settings(item for flag, item in pairs if flag == "--attr")
+    params = parse_settings(item for flag, item in pairs if flag != "--attr")
     return label.strip(), attrs, params
 
 
@@ -40,14 +31,10 @@ def measure(name: str, width: int, height: int, attrs: dict, params: dict, rende
             bias_spp: int = 256) -> dict:
     """{region: {"noise sun": v, "noise both": v, "bias2": b}} of multi-scale shading with the
     class attributes ``attrs`` and cloth parameters ``params``."""
-    from mscloth.bsdf.registry import cloth_class
     from mscloth.compare import REGIONS, depth_and_cloth, reference_image, region_masks, timed_render
     from mscloth.error_budget import BIAS_SEEDS, LIGHTS, NOISE_SEED, _scene, per_sample_noise, squared_bias
 
-    cls = cloth_class()
-    saved = {k: getattr(cls, k) for k in attrs}
-    for k, v in attrs.items():
-        setattr(cls, k, v)
+    saved = set_class_attributes(attrs)
     try:
         masks = region_masks(*depth_and_cloth(name, width, height))[0]
         ref, ref_var, _ = reference_image(name, width, height, 1024, quiet=True)
@@ -66,8 +53,7 @@ def measure(name: str, width: int, height: int, attrs: dict, params: dict, rende
             del scene
         return out
     finally:
-        for k, v in saved.items():
-            setattr(cls, k, v)
+        set_class_attributes(saved)
 
 
 def main(argv=None) -> int:
@@ -77,13 +63,8 @@ def main(argv=None) -> int:
                         help="'LABEL: --attr NAME=VALUE --set NAME=VALUE ...' (default: the code as it is)")
     parser.add_argument("--res", default="320x180")
     args = parser.parse_args(argv)
-    sys.path.insert(0, "src")
-    import mitsuba as mi
-
-    import mscloth
+    setup_mitsuba()
     from mscloth.compare import REGIONS
-    mi.set_variant(mscloth.default_variant())
-    mscloth.register()
     width, height = (int(v) for v in args.res.split("x"))
     print(f"| {args.scene} variant | region | noise per sample, sun | noise per sample, sun + sky | bias^2 |")
     print("|---|---|---|---|---|")

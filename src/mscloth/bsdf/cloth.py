@@ -437,7 +437,7 @@ def make_cloth_class():
             ry = dr.select(finite, dr.maximum(0.5 * (dr.abs(ly) * dr.rcp(n) + dr.abs(sy)), 0.5), 0.5)
             # The point branch's parallelogram (zero where not finite: the texel at si.uv).
             edges = tuple(dr.select(finite, e, 0.0) for e in (ax, ay, bx, by))
-            return dict(use=use, boxes=[(cx - rx, cy - ry, cx + rx, cy + ry)], edges=edges)
+            return dict(use=use, box=(cx - rx, cy - ry, cx + rx, cy + ry), edges=edges)
 
         def _point_in_footprint(self, fr, fp, xi):
             """Texel coordinates of the point ``xi`` (uniform in [0,1)^2) of the footprint's
@@ -625,16 +625,14 @@ def make_cloth_class():
             # the yarn coverage of a gap-free footprint read 0.54-1.62, so the gap lobe let
             # light through where there are no gaps (its negative values cannot be sampled)
             # and lobe probabilities reached -39 and +40 (docs/decisions.md).
-            boxes, q = self._rounded_boxes(fp, xi_round)
-            areas = [q_.area for q_ in q]
-            inv_area = dr.rcp(sum(areas))
+            box, q = self._rounded_box(fp, xi_round)
+            inv_area = dr.rcp(q.area)
 
             # Every channel at once (gap, moments, cluster histogram, albedo): packets of four
             # neighbouring channels per corner read. Uniformly coloured yarns stop before the
             # albedo channels (4 packets instead of 5 with 8 clusters).
             needed = sats.channels if self.uniform_yarn_albedo is None else -(-fd.ALBEDO // 4) * 4
-            per_box = [sats.integrals(q_, 0, needed) for q_ in q]
-            means = [sum(values) * inv_area for values in zip(*per_box)]
+            means = [value * inv_area for value in sats.integrals(q, 0, needed)]
 
             def mean(channel):
                 return means[channel]
@@ -655,7 +653,7 @@ def make_cloth_class():
 
             # Four texels of the control-variate residual, one uniform in each quadrant of
             # the footprint (stratified: a quarter of the variance of one texel or less).
-            st["texels"] = texels = self._stratified_texels(fr, boxes, areas, xi)
+            st["texels"] = texels = self._stratified_texels(fr, box, xi)
             if self.use_visibility:
                 st["cvis_i"] = cvis_i = fd.cluster_visibilities(fr["wi"], fr["flip"])
                 for t_ in texels:
@@ -693,11 +691,11 @@ def make_cloth_class():
             st["eps_lower"] = eps_c * dr.clip(lower, self.DEFENSIVE_MIN_SIDE, 1.0 - self.DEFENSIVE_MIN_SIDE)
             return st
 
-        def _rounded_boxes(self, fp, xi_round):
-            """The footprint's boxes with their corners rounded stochastically to whole
-            texels by ``xi_round`` (the box that is shaded), and their SAT queries."""
-            boxes = [round_box(*box, xi_round.x, xi_round.y) for box in fp["boxes"]]
-            return boxes, [self.footprint_data.scalar_sats.query_on_grid(*box) for box in boxes]
+        def _rounded_box(self, fp, xi_round):
+            """The footprint's probe with its corners rounded stochastically to whole texels
+            by ``xi_round`` (the box that is shaded), and its SAT query."""
+            box = round_box(*fp["box"], xi_round.x, xi_round.y)
+            return box, self.footprint_data.scalar_sats.query_on_grid(*box)
 
         @staticmethod
         def _table_tangent(fr, tangent):
@@ -743,7 +741,7 @@ def make_cloth_class():
                 # random pick of one (a quarter of the reads) was most of the estimator's own
                 # noise on shiny cloth near and in the middle distance (docs/decisions.md).
                 bins_h = hemisphere_bins(h_table, fd.dr)
-                d_yarn = sum(fd.d_integral(q_, *bins_h) for q_ in st["q"]) * st["inv_area"]  # mean over P of D I
+                d_yarn = fd.d_integral(st["q"], *bins_h) * st["inv_area"]  # mean over P of D I
                 # f_rs per unit D: G of the footprint's mean SGGX matrix (g_bar), and of each
                 # residual texel's own tangent (g_k). The residual corrects mean(D) g_bar
                 # towards mean(D g), which differ where D and the tangent correlate (grazing
@@ -765,7 +763,7 @@ def make_cloth_class():
                     if fd.per_cluster:
                         base = mi.Float(0.0)
                         for c in range(fd.clusters):
-                            base += st["cvis_i"][c] * cvis_o[c] * sum(fd.d_integral(q_, *bins_h, c) for q_ in st["q"])
+                            base += st["cvis_i"][c] * cvis_o[c] * fd.d_integral(st["q"], *bins_h, c)
                         base *= st["inv_area"]
                     elif fd.d_cluster_tile is not None:
                         # Each cluster's visibility weighted by its share of the footprint's D:
@@ -828,29 +826,16 @@ def make_cloth_class():
         # each stays uniform in its quadrant, and together they spread further.
         _STRATA = ((0.0, 0.0, 0.0, 0.0), (1.0, 0.0, 0.5, 0.25), (0.0, 1.0, 0.25, 0.75), (1.0, 1.0, 0.75, 0.5))
 
-        def _stratified_texels(self, fr, boxes, areas, xi):
-            """Four texels, one uniform in each quadrant of the footprint (from ``xi``), in
-            the rounded boxes the SAT means cover. With K boxes the quadrants are those of
-            [0, 1)^2 laid across the boxes along x in proportion to their areas: uniform
-            over their union, as the SAT means are."""
+        def _stratified_texels(self, fr, box, xi):
+            """Four texels, one uniform in each quadrant of the rounded box the SAT means
+            cover (from ``xi``)."""
+            x0, y0, x1, y1 = box
             texels = []
             for qx, qy, cx, cy in self._STRATA:
                 sx = xi.x + cx
                 sy = xi.y + cy
-                u = 0.5 * (qx + sx - dr.floor(sx))  # across the boxes, in [0, 1)
+                u = 0.5 * (qx + sx - dr.floor(sx))  # in [0, 1)
                 v = 0.5 * (qy + sy - dr.floor(sy))
-                x0, y0, x1, y1 = boxes[0]
-                if len(boxes) > 1:
-                    # The box whose share of the union's area holds u, and u within it.
-                    at = u * sum(areas)
-                    start = mi.Float(0.0)
-                    u_first = u
-                    for j, (box, area) in enumerate(zip(boxes, areas)):
-                        inside = (at >= start) if j else mi.Bool(True)
-                        x0, y0, x1, y1 = (dr.select(inside, b, c) for b, c in zip(box, (x0, y0, x1, y1)))
-                        u_first = dr.select(inside, (at - start) / dr.maximum(area, 1.0), u_first)
-                        start = start + area
-                    u = dr.minimum(u_first, 0.99999994)
                 texels.append(self._texel(fr, x0 + u * (x1 - x0), y0 + v * (y1 - y0)))
             return texels
 
@@ -1093,9 +1078,8 @@ def make_cloth_class():
                     # were most of what a shadow ray crossing cloth cost). Its mean stays in
                     # [0, 1]: over the exact area it did not, and the clip below then let
                     # light through gap-free footprints (docs/decisions.md).
-                    _, q = self._rounded_boxes(fp, xi_round)
-                    covered = sum(sats.integral(q_, self.footprint_data.GAP) for q_ in q)
-                    return covered / sum(q_.area for q_ in q)
+                    _, q = self._rounded_box(fp, xi_round)
+                    return sats.integral(q, self.footprint_data.GAP) / q.area
 
                 # Packets whose lanes all have a footprint skip the texel read; packets
                 # without one (shadow rays from vertices shaded at a point) the table reads.

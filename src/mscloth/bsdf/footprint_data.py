@@ -8,6 +8,8 @@ import mitsuba as mi
 import numpy as np
 
 from ..jit_arrays import flat_array, flat_word_array, gather, gather_block, gather_word, gather_words
+from ..precompute.direction_bins import bin_centres
+from ..scattering import sggx
 from .sat_queries import ResidualSATs, hemisphere_bins
 
 
@@ -53,7 +55,6 @@ class FootprintData:
             self.d_sat = ResidualSATs(tables.d_sat, tables.d_mean)
             # The bins' centre directions (x, y, z, 0): one packet read each, for the binned
             # D of a single texel (the control variate of the residual texels).
-            from ..precompute.direction_bins import bin_centres
             centres = bin_centres(self.dr)
             self.bin_centres = flat_array(np.concatenate([centres, np.zeros((len(centres), 1))], axis=1))
             # gap, moments (6), cluster histogram (k), albedo (3): one buffer, channel offsets.
@@ -113,8 +114,6 @@ class FootprintData:
         residual texels take it as their control variate: the footprint estimate is then
         free of the bins' bias whatever their size, at the price of more variance where
         the bins are coarse for the lobe."""
-        from ..scattering import sggx
-
         total = mi.Float(0.0)
         for b, w in zip(bins, weights):
             c = gather_block(self.bin_centres, b * 4, 4)
