@@ -14,42 +14,114 @@ import argparse
 import shlex
 import sys
 
+import numpy as np
+
 from common import parse_settings, set_class_attributes, setup_mitsuba
 
 
 def parse_variant(spec: str):
-    """'LABEL: --attr A=1 --set b=2' -> (label, {attr: value}, {param: value})."""
+    """'LABEL: --attr A=1 --set b=2 --freeze xi' -> (label, {attr: value}, {param: value}).
+    ``--freeze NAME`` (xi, round or u) holds that random number of the estimator at 1/2 for
+    every shading point: biased, but its change of the noise is that number's share."""
     label, _, rest = spec.partition(":")
     words = shlex.split(rest)
     pairs = list(zip(words[::2], words[1::2]))
     attrs = parse_settings(item for flag, item in pairs if flag == "--attr")
-    params = parse_settings(item for flag, item in pairs if flag != "--attr")
+    frozen = [item for flag, item in pairs if flag == "--freeze"]
+    if frozen:
+        attrs["_hash"] = frozen_hash(frozen)
+    params = parse_settings(item for flag, item in pairs if flag not in ("--attr", "--freeze"))
     return label.strip(), attrs, params
 
 
+def frozen_hash(names):
+    """The cloth BSDF's per-shading-point hash with the random numbers ``names`` held at 1/2."""
+    import mitsuba as mi
+    from mscloth.bsdf.registry import cloth_class
+
+    original = cloth_class()._hash
+
+    def hashed(self, si):
+        xi, xi_round, u = original(self, si)
+        half = mi.Point2f(0.5, 0.5)
+        return (half if "xi" in names else xi, half if "round" in names else xi_round,
+                mi.Float(0.5) if "u" in names else u)
+    return hashed
+
+
+def _scene(name: str, width: int, height: int, lights, params: dict, max_depth: int | None = None,
+           multiscale: bool = True):
+    """The multi-scale (or brute-force) scene with only ``lights``, the cloth ``params`` and,
+    if given, the integrator's ``max_depth`` (2: direct light only)."""
+    from mscloth.compare import scene_dict
+    from mscloth.error_budget import LIGHTS
+    from mscloth.loading import load_dict
+    from mscloth.scenes.builtin import set_cloth_parameters
+
+    scene = scene_dict(name, width, height, multiscale)
+    for key in LIGHTS["both"]:
+        if key not in lights:
+            del scene[key]
+    if params:
+        set_cloth_parameters(scene, **params)
+    if max_depth is not None:
+        scene["integrator"]["max_depth"] = max_depth
+    return load_dict(scene)
+
+
+_DIRECT_REFERENCES = {}
+
+
+def direct_reference(name: str, width: int, height: int, spp: int):
+    """(image, variance of its mean) of brute force, direct sunlight alone, at ``spp``."""
+    from mscloth.compare import timed_render
+    from mscloth.error_budget import LIGHTS
+
+    key = (name, width, height, spp)
+    if key not in _DIRECT_REFERENCES:
+        scene = _scene(name, width, height, LIGHTS["sun"], {}, 2, multiscale=False)
+        a, b = (timed_render(scene, spp // 2, seed).image.astype(np.float64) for seed in (7001, 7002))
+        _DIRECT_REFERENCES[key] = (0.5 * (a + b), 0.25 * (a - b) ** 2)
+    return _DIRECT_REFERENCES[key]
+
+
 def measure(name: str, width: int, height: int, attrs: dict, params: dict, renders: int = 8, spp: int = 4,
-            bias_spp: int = 256) -> dict:
-    """{region: {"noise sun": v, "noise both": v, "bias2": b}} of multi-scale shading with the
-    class attributes ``attrs`` and cloth parameters ``params``."""
+            bias_spp: int = 256, direct_reference_spp: int = 2048) -> dict:
+    """{region: {"noise sun": v, "noise direct sun": v, "noise both": v, "bias2": b,
+    "seconds": s}} of multi-scale shading with the class attributes ``attrs`` and cloth
+    parameters ``params``: noise per sample with the sun alone, with the sun alone and
+    direct light only (``max_depth`` 2: what the footprint estimator adds, without the
+    light transport's own noise, which brute force shares), with sun and sky; squared bias
+    (sun and sky; and "bias2 direct sun": direct sunlight alone, against a brute-force
+    reference of it rendered here at ``direct_reference_spp``); seconds per sample per pixel
+    of the image (the median render, sun and sky)."""
     from mscloth.compare import REGIONS, depth_and_cloth, reference_image, region_masks, timed_render
-    from mscloth.error_budget import BIAS_SEEDS, LIGHTS, NOISE_SEED, _scene, per_sample_noise, squared_bias
+    from mscloth.error_budget import BIAS_SEEDS, LIGHTS, NOISE_SEED, per_sample_noise, squared_bias
 
     saved = set_class_attributes(attrs)
     try:
         masks = region_masks(*depth_and_cloth(name, width, height))[0]
         ref, ref_var, _ = reference_image(name, width, height, 1024, quiet=True)
         out = {g: {} for g in REGIONS}
-        for light in ("sun", "both"):
-            scene = _scene(name, width, height, True, LIGHTS[light], **params)
-            images = [timed_render(scene, spp, NOISE_SEED + k).image for k in range(renders)]
-            noise = per_sample_noise(images, spp, ref)
+        for label, light, depth in (("sun", "sun", None), ("direct sun", "sun", 2), ("both", "both", None)):
+            scene = _scene(name, width, height, LIGHTS[light], params, depth)
+            renders_ = [timed_render(scene, spp, NOISE_SEED + k) for k in range(renders)]
+            noise = per_sample_noise([r.image for r in renders_], spp, ref)
             for g in REGIONS:
-                out[g][f"noise {light}"] = float(noise[masks[g]].mean())
-            if light == "both":
+                out[g][f"noise {label}"] = float(noise[masks[g]].mean())
+            if label == "direct sun":
+                d_ref, d_var = direct_reference(name, width, height, direct_reference_spp)
+                a, b = (timed_render(scene, bias_spp // 2, seed).image for seed in BIAS_SEEDS)
+                bias = squared_bias(a, b, d_ref, d_var)
+                for g in REGIONS:
+                    out[g]["bias2 direct sun"] = float(bias[masks[g]].mean())
+            if label == "both":
+                seconds = float(np.median([r.seconds for r in renders_])) / spp
                 a, b = (timed_render(scene, bias_spp // 2, seed).image for seed in BIAS_SEEDS)
                 bias = squared_bias(a, b, ref, ref_var)
                 for g in REGIONS:
                     out[g]["bias2"] = float(bias[masks[g]].mean())
+                    out[g]["seconds"] = seconds
             del scene
         return out
     finally:
@@ -66,14 +138,16 @@ def main(argv=None) -> int:
     setup_mitsuba()
     from mscloth.compare import REGIONS
     width, height = (int(v) for v in args.res.split("x"))
-    print(f"| {args.scene} variant | region | noise per sample, sun | noise per sample, sun + sky | bias^2 |")
-    print("|---|---|---|---|---|")
+    print(f"| {args.scene} variant | region | noise per sample: sun | sun, direct only | sun + sky | "
+          "bias^2 | bias^2, direct sun | seconds per spp |")
+    print("|---|---|---|---|---|---|---|---|")
     for spec in args.variant or ["default"]:
         label, attrs, params = parse_variant(spec)
         result = measure(args.scene, width, height, attrs, params)
         for g in REGIONS:
             r = result[g]
-            print(f"| {label} | {g} | {r['noise sun']:.3g} | {r['noise both']:.3g} | {r['bias2']:.2g} |", flush=True)
+            print(f"| {label} | {g} | {r['noise sun']:.3g} | {r['noise direct sun']:.3g} | {r['noise both']:.3g} | "
+                  f"{r['bias2']:.2g} | {r['bias2 direct sun']:.2g} | {r['seconds']:.3g} |", flush=True)
     return 0
 
 

@@ -648,7 +648,8 @@ def test_orthographic_centre_offset_recovers_the_film_position():
 @pytest.mark.parametrize("camera", ["perspective", "orthographic"])
 def test_footprint_bsdfs_see_the_pixel_centre_at_the_first_hit(camera):
     """A BSDF with eval_pdf_sample_n and footprint_shading gets the uv of the pixel centre at
-    the first hit: every sample of a pixel reports the same uv, the centre's."""
+    the first hit: every sample of a pixel reports the same uv, the centre's; and each
+    sample's own offset from that centre (uniform in [-1/2, 1/2) along x)."""
     seen = {}
 
     class Probe(mi.BSDF):
@@ -659,11 +660,11 @@ def test_footprint_bsdfs_see_the_pixel_centre_at_the_first_hit(camera):
             self.m_flags = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
             self.m_components = [self.m_flags]
 
-        def eval_pdf_sample_n(self, ctx, si, wos, s1, s2, active=True):
+        def eval_pdf_sample_n(self, ctx, si, wos, s1, s2, active=True, pixel_offset=None):
             bs = dr.zeros(mi.BSDFSample3f)
             bs.wo = mi.Vector3f(0, 0, 1)
             bs.pdf = 0.0  # end the path here
-            colour = mi.Color3f(si.uv.x, si.uv.y, 0.0)
+            colour = mi.Color3f(si.uv.x, si.uv.y, pixel_offset.x)
             return [colour for _ in wos], [mi.Float(0.0) for _ in wos], bs, mi.Color3f(0.0)
 
         def sample(self, ctx, si, s1, s2, active=True):
@@ -703,6 +704,11 @@ def test_footprint_bsdfs_see_the_pixel_centre_at_the_first_hit(camera):
     # No spread between the samples of a pixel: the variance across seeds vanishes.
     other = render(mi.load_dict(scene), 1, seed=5)
     np.testing.assert_allclose(other[..., :2], ours[..., :2], atol=2e-4)
+    # The offsets: within the pixel, uniform (mean 0, standard deviation 12^-1/2).
+    offsets = other[..., 2].ravel()
+    assert np.all(np.abs(offsets) <= 0.5), offsets
+    assert abs(offsets.mean()) < 4.0 * 0.29 / 8.0 and abs(offsets.std() - 0.289) < 0.08, offsets
+    assert np.all(np.abs(ours[..., 2]) < 4.0 * 0.29 / 8.0), ours[..., 2]
 
 
 # ----------------------------------------------------------------------------------------

@@ -70,6 +70,41 @@ def sheared_interaction(n: int, uv, a_texels: float, shear: float, tile_texels: 
     return si
 
 
+def to_tilted(v, a, b):
+    """``v`` (local) in the frame turned by the least rotation that takes z to the normal
+    (a, b, 1)/|(a, b, 1)|: a point of a curved surface whose normal tilts by (a, b)."""
+    r = dr.rsqrt(1.0 + a * a + b * b)
+    kx, ky, c = -b * r, a * r, r  # k = z x n: sin(angle) times the axis
+    kv = (kx * v.x + ky * v.y) * dr.rcp(1.0 + c)
+    # Rodrigues, transposed: R^T v = c v - k x v + k (k.v)/(1 + c).
+    return mi.Vector3f(c * v.x - ky * v.z + kx * kv, c * v.y + kx * v.z + ky * kv,
+                       c * v.z - (kx * v.y - ky * v.x))
+
+
+def _pixel_points(n: int, a_texels: float, shear: float, tile_texels: int, seed: int):
+    """(du, dv): ``n`` uniform points of the sheared pixel footprint, offsets from its centre."""
+    rng = np.random.default_rng(seed)
+    s, t = rng.random(n) - 0.5, rng.random(n) - 0.5
+    return (s + t * shear) * a_texels / tile_texels, t * a_texels / tile_texels
+
+
+def curved_pixel_expectation(bsdf, n: int, uv, a_texels: float, shear: float, tile_texels: int, wi, wo,
+                             curvature: float, seed: int = 4):
+    """(mean, standard error) of ``bsdf.eval`` over the samples of a pixel on a curved
+    surface whose normal tilts by ``curvature`` radians per UV unit (a sphere of radius
+    1/curvature in UV units), as ``clothpath`` hands them to a footprint BSDF: each sample
+    at a random point of the pixel, with the pixel centre's uv and footprint and its own
+    normal (the directions local to it)."""
+    si = sheared_interaction(n, uv, a_texels, shear, tile_texels, wi)
+    du, dv = _pixel_points(n, a_texels, shear, tile_texels, seed)
+    a, b = mi.Float(curvature * du), mi.Float(curvature * dv)
+    si.wi = to_tilted(mi.Vector3f(_unit(wi)), a, b)
+    rng = np.random.default_rng(seed + 1)
+    si.p = mi.Point3f(*(mi.Float(rng.random(n) * 10.0) for _ in range(3)))
+    v = np.array(bsdf.eval(_non_delta_context(), si, to_tilted(mi.Vector3f(_unit(wo)), a, b)))[0]
+    return float(v.mean()), float(v.std() / np.sqrt(n))
+
+
 def shading_expectation(bsdf, si, wo, seed=3):
     """(mean, standard error) of the red channel of ``bsdf.eval`` (non-delta lobes) over the
     lanes of ``si`` with random si.p: what a render averages over a pixel's samples at one
@@ -83,14 +118,17 @@ def shading_expectation(bsdf, si, wo, seed=3):
 
 
 def parallelogram_brute_force(params: dict, uv, a_texels: float, shear: float, tile_texels: int, wi, wo,
-                              n=200000, seed=2):
+                              n=200000, seed=2, curvature: float = 0.0):
     """(mean, standard error) of the fibre-level BSDF over the sheared footprint of
-    :func:`sheared_interaction`."""
+    :func:`sheared_interaction`, each point shaded at its own normal (``curvature``: see
+    :func:`curved_pixel_expectation`)."""
     point = mi.load_dict(dict(params, multiscale=False))
-    rng = np.random.default_rng(seed)
-    s, t = rng.random(n) - 0.5, rng.random(n) - 0.5
+    du, dv = _pixel_points(n, a_texels, shear, tile_texels, seed)
     si = dr.zeros(mi.SurfaceInteraction3f, n)
-    si.wi = mi.Vector3f(_unit(wi))
-    si.uv = mi.Point2f(uv[0] + (s + t * shear) * a_texels / tile_texels, uv[1] + t * a_texels / tile_texels)
-    v = np.array(point.eval(_non_delta_context(), si, mi.Vector3f(_unit(wo))))[0]
+    si.uv = mi.Point2f(uv[0] + du, uv[1] + dv)
+    # The point's normal tilts by curvature * (du, dv): directions in its own frame.
+    a, b = mi.Float(curvature * du), mi.Float(curvature * dv)
+    si.wi = to_tilted(mi.Vector3f(_unit(wi)), a, b)
+    wo_local = to_tilted(mi.Vector3f(_unit(wo)), a, b)
+    v = np.array(point.eval(_non_delta_context(), si, wo_local))[0]
     return float(v.mean()), float(v.std() / np.sqrt(n))

@@ -411,6 +411,17 @@ def make_cloth_class():
             use = (p_use > 0.0) & (u < p_use)
             if u_probe is None:
                 u_probe = dr.minimum(u * dr.select(p_use > 0.0, dr.rcp(p_use), 0.0), 0.99999994)
+                u_probe_a = u_probe_b = u_probe
+                offset = fr.get("pixel_offset")
+                if offset is not None:
+                    # The slice the sample lies in: with a stratified sampler (multijitter
+                    # stratifies each pixel axis), a pixel's samples spread evenly over
+                    # its slices, and the probes' variance between them mostly cancels.
+                    known = (offset.x >= -0.5) & (offset.y >= -0.5)
+                    u_probe_a = dr.select(known, dr.clip(offset.x + 0.5, 0.0, 0.99999994), u_probe)
+                    u_probe_b = dr.select(known, dr.clip(offset.y + 0.5, 0.0, 0.99999994), u_probe)
+            else:
+                u_probe_a = u_probe_b = u_probe
 
             def slicing(l_x, l_y, l2, s_x, s_y):
                 """(n, the n slices' bounding-box area) cutting edge l into n slices: the n
@@ -428,6 +439,7 @@ def make_cloth_class():
             n_b, cover_b = slicing(bx, by, lb2, ax, ay)
             along_a = cover_a <= cover_b
             n = dr.select(along_a, n_a, n_b)
+            u_probe = dr.select(along_a, u_probe_a, u_probe_b)  # edge a: the pixel's x step
             lx, ly = dr.select(along_a, ax, bx), dr.select(along_a, ay, by)
             sx, sy = dr.select(along_a, bx, ax), dr.select(along_a, by, ay)
             offset = (dr.floor(u_probe * n) + 0.5) * dr.rcp(n) - 0.5
@@ -651,8 +663,8 @@ def make_cloth_class():
                 sgn = fr["sign"]
                 st["moments"] = (m[0], m[1], sgn * m[2], m[3], sgn * m[4], m[5])
 
-            # Four texels of the control-variate residual, one uniform in each quadrant of
-            # the footprint (stratified: a quarter of the variance of one texel or less).
+            # The texels of the control-variate residual, one uniform in each cell of a grid
+            # over the footprint (stratified: 1/n of the variance of one texel or less).
             st["texels"] = texels = self._stratified_texels(fr, box, xi)
             if self.use_visibility:
                 st["cvis_i"] = cvis_i = fd.cluster_visibilities(fr["wi"], fr["flip"])
@@ -666,7 +678,7 @@ def make_cloth_class():
 
             # The sampling mixture: lobes chosen by the footprint's own averages (yarn
             # coverage, yarn colour, mean SGGX matrix), the specular lobe from the tangent
-            # of one of the four texels, and a defensive cosine component.
+            # of one of the residual texels, and a defensive cosine component.
             k = _with_yarn_albedo(fr["k"], st["yarn_albedo"])
             scattered = mi.Float(0.0)
             if "moments" in st:
@@ -674,7 +686,7 @@ def make_cloth_class():
                 scattered = 1.0 - spongecake.unscattered_transmittance_from(sigma_i, fr["wi"], self.thickness)
             st["fp_probs"] = self._lobe_weights(k, fr["wi"], yarn_mean, fr["t_sheen_i"], scattered, enabled,
                                                 self.footprint_calibration)
-            # Scaled by the square root of the yarn lobes' share: it guards them (the four
+            # Scaled by the square root of the yarn lobes' share: it guards them (the residual
             # texels' tangents may miss some of the footprint's), and the sheen, sampled from
             # its own table, needs no guard. A fixed share spent a tenth of the samples at
             # grazing angles, where the sheen is almost all (weight variance at 88 degrees:
@@ -759,7 +771,7 @@ def make_cloth_class():
                             sggx.projected_area(wo, t_["tangent"], self.roughness)) for t_ in texels]
                 if self.use_visibility:
                     # Alg. 4's visibility: the mean v_c of the residual texels' clusters.
-                    texel_mean = 0.25 * (vbar_p[0] + vbar_p[1] + vbar_p[2] + vbar_p[3])
+                    texel_mean = sum(vbar_p) * (1.0 / len(vbar_p))
                     if fd.per_cluster:
                         base = mi.Float(0.0)
                         for c in range(fd.clusters):
@@ -786,12 +798,12 @@ def make_cloth_class():
                     # An unbiased control-variate estimate: it can dip below zero for the
                     # residual texels (V(p) = 0 under a bright base); clamping it biased
                     # grazing highlights by up to +90% (docs/decisions.md), so we do not.
-                    spec = base * g_bar + 0.25 * residual
+                    spec = base * g_bar + residual * (1.0 / len(texels))
                 else:
                     residual = mi.Float(0.0)
                     for d, db, g in zip(d_k, dbin_k, g_k):
                         residual += d * g - db * g_bar
-                    spec = d_yarn * g_bar + 0.25 * residual
+                    spec = d_yarn * g_bar + residual * (1.0 / len(texels))
                 if enabled[SPECULAR_REFLECTION]:
                     reflection += k["specular_albedo"] * yarn_albedo * spec
                 if enabled[SPECULAR_TRANSMISSION]:
@@ -801,7 +813,7 @@ def make_cloth_class():
                     # Eq. 14 through the cluster histogram, plus the same residual texel.
                     yarn_visible = mi.Float(0.0)
                     for t_, v, vbar in zip(texels, v_p, vbar_p):
-                        yarn_visible += 0.25 * t_["yarn"] * (v - vbar)
+                        yarn_visible += t_["yarn"] * (v - vbar) * (1.0 / len(texels))
                     for c in range(fd.clusters):
                         yarn_visible += st["cvis_i"][c] * cvis_o[c] * st["fractions"][c]
                 else:
@@ -816,26 +828,37 @@ def make_cloth_class():
 
         # The footprint BSDF is sampled as a mixture: a lobe chosen by the footprint's
         # averages (so the gap, diffuse and specular shares match the footprint form), the
-        # specular lobe from one of the four stratified texels, and a defensive cosine
+        # specular lobe from one of the stratified residual texels, and a defensive cosine
         # component that keeps every direction reachable.
         DEFENSIVE_COSINE = 0.1
         #: The least share of the defensive cosine on either side of the surface.
         DEFENSIVE_MIN_SIDE = 0.1
 
-        # Offsets of the four stratified texels' random numbers (a rotated 2x2 lattice):
-        # each stays uniform in its quadrant, and together they spread further.
-        _STRATA = ((0.0, 0.0, 0.0, 0.0), (1.0, 0.0, 0.5, 0.25), (0.0, 1.0, 0.25, 0.75), (1.0, 1.0, 0.75, 0.5))
+        #: The control-variate residual's texels: one in each cell of a RESIDUAL_GRID^2
+        #: grid over the shaded box.
+        RESIDUAL_GRID = 2
+
+        @staticmethod
+        def _strata(g):
+            """(cell x, cell y, offset x, offset y) of each residual texel: the offsets of
+            their shared random numbers form a rotated lattice (2x2: the quarter steps), so
+            each texel stays uniform in its cell and together they spread further."""
+            if g == 2:
+                return ((0.0, 0.0, 0.0, 0.0), (1.0, 0.0, 0.5, 0.25), (0.0, 1.0, 0.25, 0.75), (1.0, 1.0, 0.75, 0.5))
+            n = g * g
+            return tuple((float(k % g), float(k // g), ((k * 7) % n) / n, ((k * 5) % n + 0.5) / n) for k in range(n))
 
         def _stratified_texels(self, fr, box, xi):
-            """Four texels, one uniform in each quadrant of the rounded box the SAT means
-            cover (from ``xi``)."""
+            """The residual texels, one uniform in each cell of the rounded box the SAT
+            means cover (from ``xi``)."""
             x0, y0, x1, y1 = box
+            g = self.RESIDUAL_GRID
             texels = []
-            for qx, qy, cx, cy in self._STRATA:
+            for qx, qy, cx, cy in self._strata(g):
                 sx = xi.x + cx
                 sy = xi.y + cy
-                u = 0.5 * (qx + sx - dr.floor(sx))  # in [0, 1)
-                v = 0.5 * (qy + sy - dr.floor(sy))
+                u = (qx + sx - dr.floor(sx)) * (1.0 / g)  # in [0, 1)
+                v = (qy + sy - dr.floor(sy)) * (1.0 / g)
                 texels.append(self._texel(fr, x0 + u * (x1 - x0), y0 + v * (y1 - y0)))
             return texels
 
@@ -918,7 +941,13 @@ def make_cloth_class():
             it), for the mirrored directions ``wos`` and, if given, one sample."""
             x, y = fr["x"], fr["y"]
             if fp is not None:
-                x, y = self._point_in_footprint(fr, fp, self._hash(si)[0])
+                xi = self._hash(si)[0]
+                offset = fr.get("pixel_offset")
+                if offset is not None:
+                    # The sample's own point of the pixel: brute force, exactly.
+                    known = (offset.x >= -0.5) & (offset.y >= -0.5)
+                    xi = dr.select(known, mi.Point2f(offset.x + 0.5, offset.y + 0.5), xi)
+                x, y = self._point_in_footprint(fr, fp, xi)
             pt = self._texel(fr, x, y)
             if self.use_visibility and self.footprint_data is not None:
                 # The texel's visibility bits, read once for every direction below.
@@ -954,14 +983,14 @@ def make_cloth_class():
             (wo mirrored, ok, component, gap_ok, gap_pdf, gap_value)."""
             texels, fp_probs, eps_c = st["texels"], st["fp_probs"], st["eps_c"]
             # Split sample1: defensive cosine | the footprint's lobes; within the specular
-            # share, which of the four texels lends its tangent.
+            # share, which of the residual texels lends its tangent.
             pick_def_cos = sample1 < eps_c
             u = (sample1 - eps_c) / (1.0 - eps_c)
             u_spec = (u - fp_probs[SHEEN]) / dr.select(fp_probs[SPECULAR_REFLECTION] > 0.0,
                                                        fp_probs[SPECULAR_REFLECTION], 1.0)
-            quad = mi.UInt32(dr.clip(dr.floor(u_spec * 4.0), 0, 3))
+            quad = mi.UInt32(dr.clip(dr.floor(u_spec * len(texels)), 0, len(texels) - 1))
             chosen = dict(texels[0])
-            for q in range(1, 4):
+            for q in range(1, len(texels)):
                 chosen["tangent"] = dr.select(quad == q, texels[q]["tangent"], chosen["tangent"])
 
             wo, ok, component, gap_ok = self._sample_point(chosen, fp_probs, enabled, u, sample2, active)
@@ -1009,15 +1038,19 @@ def make_cloth_class():
             bs.sampled_type = sampled_type
             return bs, weight
 
-        def _shade(self, ctx, si, wos, samples, active):
+        def _shade(self, ctx, si, wos, samples, active, pixel_offset=None):
             """eval_pdf at the world-frame directions ``wos`` and, if ``samples`` =
             (sample1, sample2) is given, one sample: ([values], [pdfs], (bs, weight) or ()).
+            ``pixel_offset``: the sample's offset from its pixel's centre, in pixels along
+            the footprint's edges si.duv_dx, si.duv_dy (each in [-1/2, 1/2); below: not
+            known), which picks its probe (``_footprint``) and fibre-level point.
 
             Footprints of a texel or more take the multi-scale branch, smaller ones the
             fibre-level one; a symbolic if, so a packet of lanes that all take one branch
             skips the other's work."""
             enabled = self._enabled(ctx)
             fr = self._frame(si, active)
+            fr["pixel_offset"] = pixel_offset
             wos = [self._mirror(fr, wo) for wo in wos]
             if not self.multiscale:
                 values, pdfs, record = self._point_branch(si, fr, enabled, wos, samples, active)
@@ -1092,11 +1125,12 @@ def make_cloth_class():
         def pdf(self, ctx, si, wo, active=True):
             return self.eval_pdf(ctx, si, wo, active)[1]
 
-        def eval_pdf_sample_n(self, ctx, si, wos, sample1, sample2, active=True):
+        def eval_pdf_sample_n(self, ctx, si, wos, sample1, sample2, active=True, pixel_offset=None):
             """eval_pdf at every direction of ``wos`` and one sample, sharing one footprint
             state (SAT means, visibilities, the sampling mixture: all independent of the
-            outgoing direction). Called by ``clothpath`` through ``dr.dispatch``."""
-            values, pdfs, (bs, weight) = self._shade(ctx, si, wos, (sample1, sample2), active)
+            outgoing direction). Called by ``clothpath`` through ``dr.dispatch``, which
+            passes the camera sample's ``pixel_offset`` at first hits (see ``_shade``)."""
+            values, pdfs, (bs, weight) = self._shade(ctx, si, wos, (sample1, sample2), active, pixel_offset)
             return values, pdfs, bs, weight
 
         def eval_pdf_sample(self, ctx, si, wo, sample1, sample2, active=True):

@@ -136,17 +136,20 @@ def mis_weight(pdf_a, pdf_b):
     return dr.detach(dr.select(dr.isfinite(w), w, 0.0))
 
 
-def eval_pdf_sample_n(bsdf, ctx, si, si_centred, wos, sample1, sample2, active=True):
+def eval_pdf_sample_n(bsdf, ctx, si, si_centred, wos, sample1, sample2, active=True, pixel_offset=None):
     """eval_pdf at each direction of ``wos`` and one sample: ([values], [pdfs], bs, weight).
 
     BSDFs with their own ``eval_pdf_sample_n`` (``cloth``) share the work of one shading
     point between all directions; those that shade whole footprints (``footprint_shading``
     true: multi-scale ``cloth``) see ``si_centred`` (uv at the pixel centre on first hits,
     see :mod:`.footprint`). Others get eval_pdf / sample calls on ``si`` (one direction:
-    eval_pdf_sample, exactly as ``path``)."""
+    eval_pdf_sample, exactly as ``path``). ``pixel_offset``: the camera sample's offset
+    from its pixel centre in pixels (each coordinate in [-1/2, 1/2); -1 where unknown),
+    for footprint-shading BSDFs: the part of the footprint that the sample stands for."""
     if hasattr(bsdf, "eval_pdf_sample_n"):
-        si_bsdf = si_centred if getattr(bsdf, "footprint_shading", False) else si
-        return bsdf.eval_pdf_sample_n(ctx, si_bsdf, wos, sample1, sample2, active)
+        if getattr(bsdf, "footprint_shading", False):
+            return bsdf.eval_pdf_sample_n(ctx, si_centred, wos, sample1, sample2, active, pixel_offset)
+        return bsdf.eval_pdf_sample_n(ctx, si, wos, sample1, sample2, active)
     if len(wos) == 1:
         value, pdf, bs, weight = bsdf.eval_pdf_sample(ctx, si, wos[0], sample1, sample2, active)
         return [value], [pdf], bs, weight
@@ -392,21 +395,24 @@ def make_clothpath_class():
                 sample_2 = sampler.next_2d()
                 wos = [e[3] for e in em_samples]
                 si_centred = si
+                pixel_offset = mi.Point2f(-1.0, -1.0)
                 if centring is not None:
                     # Footprint-aware BSDFs see the pixel centre's uv at the first hit.
                     si_centred = mi.SurfaceInteraction3f(si)
                     ox, oy, centre_ok = centring(si.p, first & si.is_valid())
                     centre = fp.centred_uv(si.uv, si.duv_dx, si.duv_dy, ox, oy)
                     si_centred.uv = dr.select(centre_ok, centre, si.uv)
+                    pixel_offset = dr.select(centre_ok, mi.Point2f(ox, oy), pixel_offset)
                 if jit:
                     # Lanes whose path ends here skip the BSDF (as path.cpp masks it with
                     # active_next): a footprint shading is costly, and its result unused.
                     shaded = dr.select(active_next, bsdf, dr.zeros(mi.BSDFPtr))
                     bsdf_vals, bsdf_pdfs, bsdf_sample, bsdf_weight = dr.dispatch(
-                        shaded, eval_pdf_sample_n, bsdf_ctx, si, si_centred, wos, sample_1, sample_2)
+                        shaded, eval_pdf_sample_n, bsdf_ctx, si, si_centred, wos, sample_1, sample_2, True,
+                        pixel_offset)
                 else:
                     bsdf_vals, bsdf_pdfs, bsdf_sample, bsdf_weight = eval_pdf_sample_n(
-                        bsdf, bsdf_ctx, si, si_centred, wos, sample_1, sample_2)
+                        bsdf, bsdf_ctx, si, si_centred, wos, sample_1, sample_2, True, pixel_offset)
 
                 # ---------------- Emitter sampling contribution ---------------
                 for (ds, em_weight, em_active, wo), bsdf_val, bsdf_pdf in zip(em_samples, bsdf_vals, bsdf_pdfs):
