@@ -68,13 +68,37 @@ def test_shiny_footprint_matches_brute_force_without_visibility(roughness, half,
     check(dict(SATIN, roughness=roughness, visibility=False), half, pair)
 
 
+@pytest.mark.parametrize("unbiased_ccv", [False, True])
 @pytest.mark.parametrize("half", [4.0, 1.5 * N_TEXELS])
 @pytest.mark.parametrize("pair", ["near-specular", "grazing-across", "transmission"])
-def test_shiny_footprint_matches_brute_force_with_visibility(half, pair):
-    """With visibility and the per-cluster control-variate base (``unbiased_ccv``), at
-    roughness 0.1. The default base is biased at grazing angles below a tile (bench/RESULTS.md)."""
+def test_shiny_footprint_matches_brute_force_with_visibility(half, pair, unbiased_ccv):
+    """With visibility at roughness 0.1, with the default control-variate base (the
+    residual's control variate takes the base's own visibility) and the per-cluster one
+    (``unbiased_ccv``)."""
     roughness = 0.1
-    check(dict(SATIN, roughness=roughness, unbiased_ccv=True), half, pair)
+    check(dict(SATIN, roughness=roughness, unbiased_ccv=unbiased_ccv), half, pair)
+
+
+#: Sheared footprints of 6x6 texels (wi, wo, uv, shear, visibility) where the probes'
+#: bounding boxes (their overhang) read 10% high, and the residual's control variate at each
+#: texel's cluster visibility 57% high and 24% low (bench/footprint_bias_scan.py).
+SMALL_SHEARED = [
+    ([0.45, -0.75, 0.49], [0.11, 0.5, 0.86], [0.639, 0.805], 0.93, False),
+    ([-0.54, -0.15, 0.83], [0.42, -0.01, 0.91], [0.243, 0.257], -0.85, False),
+    ([0.27, -0.74, 0.61], [-0.55, 0.64, 0.54], [0.761, 0.026], -0.11, True),
+    ([-0.49, 0.05, 0.87], [0.96, -0.24, 0.11], [0.725, 0.541], -0.45, True),
+]
+
+
+@pytest.mark.parametrize("wi,wo,uv,shear,visibility", SMALL_SHEARED)
+def test_small_sheared_shiny_footprints_match_brute_force(wi, wo, uv, shear, visibility):
+    params = dict(SATIN, roughness=0.12, visibility=visibility)
+    bsdf = mi.load_dict(params)
+    si = validation.sheared_interaction(40000, uv, 6.0, shear, N_TEXELS, wi)
+    ms, ms_err = validation.shading_expectation(bsdf, si, wo)
+    bf, bf_err = validation.parallelogram_brute_force(params, uv, 6.0, shear, N_TEXELS, wi, wo, n=80000)
+    tolerance = 5.0 * np.hypot(ms_err, bf_err) + APPROXIMATION * abs(bf)
+    assert abs(ms - bf) <= tolerance, (wi, wo, shear, ms, bf, tolerance)
 
 
 @pytest.mark.parametrize("roughness", [0.05, 0.1, 0.2])
@@ -82,7 +106,8 @@ def test_shiny_footprint_matches_brute_force_with_visibility(half, pair):
 @pytest.mark.parametrize("pair", ["near-specular", "grazing-along"])
 def test_sheared_shiny_footprint_matches_brute_force_over_the_parallelogram(roughness, a, shear, pair):
     """Sheared pixels: the footprint's probes average to the parallelogram, not its bounding
-    box (a probe is a slice's bounding box: the stated approximation covers its overhang)."""
+    box (a probe is a box of its slice's area: the stated approximation covers the slices'
+    slanted ends, which it blurs over a fraction of a slice)."""
     check(dict(SATIN, roughness=roughness, visibility=False), a, pair, shear=shear)
 
 

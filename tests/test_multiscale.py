@@ -301,9 +301,10 @@ def probe_boxes(bsdf, si, u_probe):
 @pytest.mark.parametrize("a,shear", [(12.0, 0.9), (40.0, 3.0), (12.0, 0.0), (30.0, -0.2), (3.0, 1.0)])
 def test_footprint_probes_tile_the_pixel_parallelogram(a, shear):
     """The probes of a pixel's parallelogram (edges (a, 0) and (shear a, a) texels): slices
-    of it, each shaded as its bounding box. Together they cover every point of the
-    parallelogram, far less area than its bounding box where it is sheared, and exactly the
-    rectangle where it is not; each probe's centre lies on the pixel's centre line."""
+    of it, each shaded as the box of its own area and centre. Together they have the
+    parallelogram's area and cover almost all of it (their boxes cut the slices' slanted ends,
+    as far as they reach beyond them), exactly the rectangle where it is not sheared; each
+    probe's centre lies on the pixel's centre line."""
     bsdf = mi.load_dict(BASE)
     uv = [0.3, 0.55]
     m = 64
@@ -318,14 +319,15 @@ def test_footprint_probes_tile_the_pixel_parallelogram(a, shear):
     eps = 1e-3
     inside = ((pts[:, None, 0] >= boxes[None, :, 0] - eps) & (pts[:, None, 0] <= boxes[None, :, 2] + eps)
               & (pts[:, None, 1] >= boxes[None, :, 1] - eps) & (pts[:, None, 1] <= boxes[None, :, 3] + eps))
-    assert np.all(inside.any(axis=1))
+    covered = inside.any(axis=1).mean()
+    assert covered >= 0.85, covered
     probe_area = ((boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])).sum()
-    bounding = (1.0 + abs(shear)) * a * a
-    assert a * a <= probe_area * (1 + 1e-5)
-    if abs(shear) >= 0.9 and a > 4:
-        assert probe_area < 0.8 * bounding, (probe_area, bounding)
+    if np.all(boxes[:, 2:] - boxes[:, :2] > 1.0 + 1e-4):
+        np.testing.assert_allclose(probe_area, a * a, rtol=1e-4)
+    else:  # a probe is at least a texel wide
+        assert probe_area >= a * a * (1 - 1e-4)
     if shear == 0.0:  # axis-aligned: pieces of the rectangle itself
-        np.testing.assert_allclose(probe_area, a * a, rtol=1e-5)
+        assert covered == 1.0
     # Centres on the line through the pixel's centre along the sliced edge.
     centres = 0.5 * (boxes[:, :2] + boxes[:, 2:]) - c
     edges = np.array([[a, 0.0], [shear * a, a]])

@@ -445,8 +445,24 @@ def make_cloth_class():
             offset = (dr.floor(u_probe * n) + 0.5) * dr.rcp(n) - 0.5
             cx = fr["x"] + dr.select(finite, offset * lx, 0.0)
             cy = fr["y"] + dr.select(finite, offset * ly, 0.0)
-            rx = dr.select(finite, dr.maximum(0.5 * (dr.abs(lx) * dr.rcp(n) + dr.abs(sx)), 0.5), 0.5)
-            ry = dr.select(finite, dr.maximum(0.5 * (dr.abs(ly) * dr.rcp(n) + dr.abs(sy)), 0.5), 0.5)
+            # The probe: the box of the slice's own area and centre, its sides in the ratio
+            # of the slice's extents (square roots of its covariance's diagonal). Where the
+            # slice's ends are slanted the box cuts into it as far as it reaches beyond,
+            # so the pixel's edges blur over a fraction of a slice instead of the
+            # bounding box's overhang adding texels from outside the pixel: 2-10% of bias
+            # at 12^2 texels sheared (bench/footprint_bias_scan.py, docs/decisions.md).
+            px, py = lx * dr.rcp(n), ly * dr.rcp(n)
+            var_x = px * px + sx * sx
+            var_y = py * py + sy * sy
+            slice_area = dr.abs(px * sy - py * sx)
+            aspect = dr.sqrt(dr.sqrt(var_x * dr.rcp(dr.maximum(var_y, 1e-30))))
+            area_ok = (slice_area > 1e-6) & (var_x > 0.0) & (var_y > 0.0)
+            rx_fit = 0.5 * dr.sqrt(slice_area) * aspect
+            ry_fit = 0.25 * slice_area * dr.rcp(dr.maximum(rx_fit, 1e-30))
+            rx = dr.select(area_ok, rx_fit, 0.5 * (dr.abs(px) + dr.abs(sx)))
+            ry = dr.select(area_ok, ry_fit, 0.5 * (dr.abs(py) + dr.abs(sy)))
+            rx = dr.select(finite, dr.maximum(rx, 0.5), 0.5)
+            ry = dr.select(finite, dr.maximum(ry, 0.5), 0.5)
             # The point branch's parallelogram (zero where not finite: the texel at si.uv).
             edges = tuple(dr.select(finite, e, 0.0) for e in (ax, ay, bx, by))
             return dict(use=use, box=(cx - rx, cy - ry, cx + rx, cy + ry), edges=edges)
@@ -772,6 +788,7 @@ def make_cloth_class():
                 if self.use_visibility:
                     # Alg. 4's visibility: the mean v_c of the residual texels' clusters.
                     texel_mean = sum(vbar_p) * (1.0 / len(vbar_p))
+                    vbar_spec = vbar_p
                     if fd.per_cluster:
                         base = mi.Float(0.0)
                         for c in range(fd.clusters):
@@ -789,11 +806,18 @@ def make_cloth_class():
                             w_c = st["fractions"][c] * m_c[c]
                             num += w_c * st["cvis_i"][c] * cvis_o[c]
                             den += w_c
-                        base = d_yarn * dr.select(den > 0.0, num / dr.select(den > 0.0, den, 1.0), texel_mean)
+                        w_bar = dr.select(den > 0.0, num / dr.select(den > 0.0, den, 1.0), texel_mean)
+                        base = d_yarn * w_bar
+                        if self.CONSISTENT_VISIBILITY_CV:
+                            # The residual's control variate takes the base's own visibility,
+                            # so base + residual is unbiased at every footprint size; with
+                            # each texel's cluster visibility instead it was 2-19% off below
+                            # a tile (bench/footprint_bias_scan.py, docs/decisions.md).
+                            vbar_spec = [w_bar] * len(texels)
                     else:
                         base = d_yarn * texel_mean
                     residual = mi.Float(0.0)
-                    for d, db, g, v, vbar in zip(d_k, dbin_k, g_k, v_p, vbar_p):
+                    for d, db, g, v, vbar in zip(d_k, dbin_k, g_k, v_p, vbar_spec):
                         residual += d * v * g - db * vbar * g_bar
                     # An unbiased control-variate estimate: it can dip below zero for the
                     # residual texels (V(p) = 0 under a bright base); clamping it biased
@@ -833,6 +857,10 @@ def make_cloth_class():
         DEFENSIVE_COSINE = 0.1
         #: The least share of the defensive cosine on either side of the surface.
         DEFENSIVE_MIN_SIDE = 0.1
+
+        #: Without per-cluster tables, the specular residual's control variate takes the
+        #: footprint's mean visibility (unbiased) rather than each texel's cluster's.
+        CONSISTENT_VISIBILITY_CV = True
 
         #: The control-variate residual's texels: one in each cell of a RESIDUAL_GRID^2
         #: grid over the shaded box.
