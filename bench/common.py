@@ -1,5 +1,6 @@
 """What the measuring scripts in bench/ share: Mitsuba set-up for the package in src/, and
-NAME=VALUE settings (cloth parameters, class attributes of the cloth BSDF)."""
+NAME=VALUE settings (cloth parameters, class attributes of the cloth BSDF or of its footprint
+estimator)."""
 from __future__ import annotations
 
 import sys
@@ -36,12 +37,20 @@ def parse_settings(items) -> dict:
     return out
 
 
-def set_class_attributes(attrs: dict) -> dict:
-    """Set class attributes of the ``cloth`` BSDF (an experiment); returns the old values."""
+def attribute_owner(name: str):
+    """The class whose attribute ``name`` an experiment sets: the footprint estimator's
+    (its tuning constants, e.g. MAX_PROBES, RESIDUAL_GRID, and ``shading_hash``) if it has
+    one, else the ``cloth`` BSDF class of the active variant."""
+    from mscloth.bsdf.footprint_estimator import FootprintEstimator
     from mscloth.bsdf.registry import cloth_class
 
-    cls = cloth_class()
-    saved = {k: getattr(cls, k) for k in attrs}
+    return FootprintEstimator if hasattr(FootprintEstimator, name) else cloth_class()
+
+
+def set_class_attributes(attrs: dict) -> dict:
+    """Set class attributes of the ``cloth`` BSDF or its footprint estimator (an
+    experiment, see :func:`attribute_owner`); returns the old values."""
+    saved = {k: getattr(attribute_owner(k), k) for k in attrs}
     for k, v in attrs.items():
-        setattr(cls, k, v)
+        setattr(attribute_owner(k), k, v)
     return saved

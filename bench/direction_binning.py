@@ -293,7 +293,7 @@ def measure(pattern, alpha, drs, ranks=(), rank_drs=(), interps=("bilinear",), s
                         sums.setdefault((size, k, interp, dr, K), []).append(e * e)
                         # The rank-K table against the full one at the same dr (normalised by
                         # the exact m): the bias left when the residual texels' control
-                        # variate is their full-binned D (cloth.py's estimator).
+                        # variate is their full-binned D (bsdf/footprint_estimator.py).
                         f_h = interpolate(full, h, dr, interp)
                         e = np.sqrt(np.sum((a_h - f_h) ** 2) / max(np.sum(exact[k] ** 2), 1e-300))
                         sums.setdefault((size, k, interp + "-vs-full", dr, K), []).append(e * e)

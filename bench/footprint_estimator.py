@@ -62,7 +62,8 @@ def main(argv=None) -> int:
     parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                         help="extra cloth parameters (int, float or bool)")
     parser.add_argument("--attr", action="append", default=[], metavar="NAME=VALUE",
-                        help="set a class attribute of the cloth BSDF first (an experiment)")
+                        help="set a class attribute of the cloth BSDF or of its footprint estimator "
+                             "first (an experiment)")
     parser.add_argument("--out", help="also append the Markdown table to this file")
     args = parser.parse_args(argv)
 

@@ -1,9 +1,10 @@
 """Which term blocks the speed-up, per region: multi-scale's noise per sample (sun alone and
 sun + sky) and squared bias, for variants of the footprint estimator (issue 20).
 
-Each variant sets class attributes of the ``cloth`` BSDF (``--attr NAME=VALUE``) or cloth
-parameters (``--set NAME=VALUE``); the reference is ``mscloth compare``'s cached brute-force
-image, so run ``mscloth compare SCENE`` (or ``make bench``) once first.
+Each variant sets class attributes of the ``cloth`` BSDF or of its footprint estimator
+(``--attr NAME=VALUE``) or cloth parameters (``--set NAME=VALUE``); the reference is
+``mscloth compare``'s cached brute-force image, so run ``mscloth compare SCENE`` (or
+``make bench``) once first.
 
     .venv/bin/python bench/region_terms.py satin --variant default \\
         --variant "probes 1: --attr MAX_PROBES=1" --variant "no visibility: --set visibility=false"
@@ -29,17 +30,18 @@ def parse_variant(spec: str):
     attrs = parse_settings(item for flag, item in pairs if flag == "--attr")
     frozen = [item for flag, item in pairs if flag == "--freeze"]
     if frozen:
-        attrs["_hash"] = frozen_hash(frozen)
+        attrs["shading_hash"] = frozen_hash(frozen)
     params = parse_settings(item for flag, item in pairs if flag not in ("--attr", "--freeze"))
     return label.strip(), attrs, params
 
 
 def frozen_hash(names):
-    """The cloth BSDF's per-shading-point hash with the random numbers ``names`` held at 1/2."""
+    """The footprint estimator's per-shading-point hash (``FootprintEstimator.shading_hash``,
+    which the cloth BSDF calls too) with the random numbers ``names`` held at 1/2."""
     import mitsuba as mi
-    from mscloth.bsdf.registry import cloth_class
+    from mscloth.bsdf.footprint_estimator import FootprintEstimator
 
-    original = cloth_class()._hash
+    original = FootprintEstimator.shading_hash
 
     def hashed(self, si):
         xi, xi_round, u = original(self, si)

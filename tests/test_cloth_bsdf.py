@@ -357,16 +357,16 @@ def test_gap_transmission_of_a_footprint_is_its_gap_lobe():
         si.duv_dx = mi.Vector2f(width / (su * W), 0.0)
         si.duv_dy = mi.Vector2f(0.0, 0.7 * width / (sv * H))
         got = np.array(bsdf.gap_transmission(si))
-        fr = bsdf._frame(si, True)
+        fr = bsdf.frame(si, True)
         t2 = float(np.array(fr["t_sheen_i"])[0]) ** 2
         # Lanes shaded as a footprint (all of them from 8 texels on) see its yarn mean, the
         # others (a 2.3 x 1.6 texel footprint is mostly shaded fibre level) their point's texel.
-        xi, _, u_choice = bsdf._hash(si)
-        fp = bsdf._footprint(si, fr, u_choice)
-        use = np.broadcast_to(np.array(fp["use"]), (n,))
+        xi, _, u_choice = bsdf.estimator.shading_hash(si)
+        fp = bsdf.estimator.footprint(si, fr, u_choice)
+        use = np.broadcast_to(np.array(fp.use), (n,))
         assert use.all() if width > 4 else 0 < use.mean() < 1
-        footprint = np.array(bsdf._footprint_state(si, fr, [True] * 6)["yarn_mean"])
-        point = np.array(bsdf._texel(fr, *bsdf._point_in_footprint(fr, fp, xi))["yarn"])
+        footprint = np.array(bsdf.estimator.state(si, fr, [True] * 6).yarn_mean)
+        point = np.array(bsdf.texel(fr, *bsdf.estimator.point_in_footprint(fr, fp, xi))["yarn"])
         lobe = np.where(use, footprint, point)
         np.testing.assert_allclose(got, t2 * (1.0 - lobe), rtol=1e-5, atol=1e-7)
         assert np.all((got >= 0.0) & (got <= t2 * (1.0 + 1e-6)))
@@ -412,7 +412,7 @@ def test_gap_transmission_skips_the_tables_only_for_lanes_without_a_footprint():
     np.testing.assert_allclose(mixed[point], call(point), rtol=1e-6, atol=1e-7)
     np.testing.assert_allclose(mixed[footprint], call(footprint), rtol=1e-5, atol=1e-6)
     # Points see one texel: no gap (0) or the gap (T_sheen^2); footprints, fractions between.
-    t2 = np.array(bsdf._frame(interaction(point), True)["t_sheen_i"]) ** 2
+    t2 = np.array(bsdf.frame(interaction(point), True)["t_sheen_i"]) ** 2
     assert np.all(np.isclose(mixed[point], 0.0, atol=1e-7) | np.isclose(mixed[point], t2, rtol=1e-5))
     assert np.any(mixed[point] > 0.0) and np.any(mixed[point] == 0.0)
     assert np.any((mixed[footprint] > 0.0) & (mixed[footprint] < 0.9 * np.max(t2)))

@@ -43,7 +43,7 @@ def test_calibrated_proxies_average_to_the_lobe_albedos():
         mu = (j + 0.5) / nodes
         assert np.all(cal.ratios[:, j] > MIN_RATIO * cal.ratios.max(axis=1))  # not floored
         si, s1, s2 = lanes_at(mu, n, seed=100 + j)
-        proxies = cal.scale(bsdf._point_proxies(si), si.wi.z)
+        proxies = cal.scale(bsdf.point_proxies(si), si.wi.z)
         for slot, comps in CALIBRATED:
             lanes = np.zeros(n)
             for c in comps:

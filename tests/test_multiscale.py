@@ -82,7 +82,7 @@ def test_sub_texel_footprint_is_the_fibre_level_bsdf():
     ctx = mi.BSDFContext()
     a = np.array(bsdf.eval(ctx, si, mi.Vector3f(*wo.T)))
     # The fibre-level BSDF at the point the footprint BSDF drew in the footprint.
-    xi = np.array(bsdf._hash(si)[0])
+    xi = np.array(bsdf.estimator.shading_hash(si)[0])
     uv_drawn = uv + (xi.T - 0.5) * np.array([0.3, 0.2]) / N_TEXELS
     b = np.array(point.eval(ctx, make_si(mi.Vector3f(*wi.T), mi.Point2f(*uv_drawn.T), n), mi.Vector3f(*wo.T)))
     np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
@@ -294,8 +294,8 @@ def sheared_si(n, uv, a_texels, shear, wi):
 
 
 def probe_boxes(bsdf, si, u_probe):
-    fp = bsdf._footprint(si, bsdf._frame(si, True), mi.Float(0.0), mi.Float(u_probe))
-    return np.array([np.asarray(v) for v in fp["box"]]).T  # (n, 4)
+    fp = bsdf.estimator.footprint(si, bsdf.frame(si, True), mi.Float(0.0), mi.Float(u_probe))
+    return np.array([np.asarray(v) for v in fp.box]).T  # (n, 4)
 
 
 @pytest.mark.parametrize("a,shear", [(12.0, 0.9), (40.0, 3.0), (12.0, 0.0), (30.0, -0.2), (3.0, 1.0)])
@@ -311,7 +311,7 @@ def test_footprint_probes_tile_the_pixel_parallelogram(a, shear):
     u = (np.arange(m) + 0.5) / m
     boxes = np.unique(probe_boxes(bsdf, sheared_si(m, uv, a, shear, [0.2, 0.1, 0.97]), u), axis=0)
     n = len(boxes)
-    assert 1 <= n <= bsdf.MAX_PROBES
+    assert 1 <= n <= bsdf.estimator.MAX_PROBES
     rng = np.random.default_rng(8)
     s, t = rng.random(20000) - 0.5, rng.random(20000) - 0.5
     c = np.array(uv) * N_TEXELS
@@ -343,18 +343,18 @@ def test_sheared_footprint_matches_brute_force_over_the_parallelogram(a, shear):
     square footprints, with visibility."""
     params = dict(BASE)
     bsdf = mi.load_dict(params)
-    ctx = validation._non_delta_context()
+    ctx = non_delta_context()
     uv = [0.3, 0.55]
     for wi, wo in DIRECTIONS[:3]:
         n = 20000
         si = sheared_si(n, uv, a, shear, unit(wi))
-        fr = bsdf._frame(si, True)
-        enabled = bsdf._enabled(ctx)
+        fr = bsdf.frame(si, True)
+        enabled = bsdf.enabled(ctx)
         rng = np.random.default_rng(12)
         numbers = (mi.Point2f(rng.random(n), rng.random(n)), mi.Point2f(rng.random(n), rng.random(n)),
                    mi.Float(rng.random(n)))
-        st = bsdf._footprint_state(si, fr, enabled, *numbers)
-        ms = np.array(bsdf._eval_footprint(fr, st, bsdf._mirror(fr, mi.Vector3f(unit(wo))), enabled))[0]
+        st = bsdf.estimator.state(si, fr, enabled, *numbers)
+        ms = np.array(bsdf.estimator.eval(fr, st, bsdf.mirror(fr, mi.Vector3f(unit(wo))), enabled))[0]
         bf_mean, bf_err = validation.parallelogram_brute_force(params, uv, a, shear, N_TEXELS, wi, wo)
         ms_mean, ms_err = ms.mean(), ms.std() / np.sqrt(n)
         tolerance = 5.0 * np.hypot(ms_err, bf_err) + APPROXIMATION * abs(bf_mean)
@@ -366,7 +366,7 @@ def test_small_footprints_blend_into_fibre_level_shading():
     texels to 1 at FOOTPRINT_TEXELS, by the footprint's area (square, sheared, a line)."""
     bsdf = mi.load_dict(BASE)
     n = 20000
-    lo, hi = bsdf.POINT_TEXELS, bsdf.FOOTPRINT_TEXELS
+    lo, hi = bsdf.estimator.POINT_TEXELS, bsdf.estimator.FOOTPRINT_TEXELS
     for texels in (1.0, lo, 0.5 * (lo + hi), 0.75 * lo + 0.25 * hi, hi, 4 * hi):
         for shear in (0.0, 1.5):
             side = float(np.sqrt(texels))
@@ -377,7 +377,7 @@ def test_small_footprints_blend_into_fibre_level_shading():
             length = side * max(1.0, np.hypot(shear, 1.0))
             covered = max(length, 1.0) * max(side * side / length, 1.0)
             expected = np.clip((covered - lo) / (hi - lo), 0.0, 1.0)
-            use = np.array(bsdf._footprint(si, bsdf._frame(si, True), bsdf._hash(si)[2])["use"])
+            use = np.array(bsdf.estimator.footprint(si, bsdf.frame(si, True), bsdf.estimator.shading_hash(si)[2]).use)
             assert abs(use.mean() - expected) <= 5.0 * np.sqrt(expected * (1 - expected) / n) + 1e-9, \
                 (texels, shear, use.mean(), expected)
 
@@ -431,15 +431,15 @@ def test_footprint_means_are_means_and_lobe_choices_a_distribution():
     size[2] *= rng.random(n) < 0.5
     si.duv_dx = mi.Vector2f(size[0], size[1])
     si.duv_dy = mi.Vector2f(size[2], size[3])
-    fr = bsdf._frame(si, True)
-    st = bsdf._footprint_state(si, fr, [True] * 6)
-    use = np.array(bsdf._footprint(si, fr, bsdf._hash(si)[2])["use"])
+    fr = bsdf.frame(si, True)
+    st = bsdf.estimator.state(si, fr, [True] * 6)
+    use = np.array(bsdf.estimator.footprint(si, fr, bsdf.estimator.shading_hash(si)[2]).use)
     assert use.mean() > 0.3
-    yarn = np.array(st["yarn_mean"])[use]
-    shares = np.array([np.array(f) for f in st["fractions"]])[:, use]
+    yarn = np.array(st.yarn_mean)[use]
+    shares = np.array([np.array(f) for f in st.fractions])[:, use]
     assert yarn.min() >= -1e-5 and yarn.max() <= 1.0 + 1e-5
     assert shares.min() >= -1e-5
     np.testing.assert_allclose(shares.sum(axis=0), yarn, atol=2e-5)
-    probs = np.array([np.array(p) for p in st["fp_probs"]])[:, use]
+    probs = np.array([np.array(p) for p in st.probs])[:, use]
     assert probs.min() >= 0.0
     np.testing.assert_allclose(probs.sum(axis=0), 1.0, atol=1e-5)

@@ -74,7 +74,7 @@ def test_scalar_variant_agrees_with_llvm(footprint):
         ctx = mi.BSDFContext()
         out = []
         wo_v = dr.normalize(mi.Vector3f(wo))
-        bsdf._hash = lambda si: (mi.Point2f(0.3, 0.7), mi.Point2f(0.6, 0.2), mi.Float(0.4))
+        bsdf.estimator.shading_hash = lambda si: (mi.Point2f(0.3, 0.7), mi.Point2f(0.6, 0.2), mi.Float(0.4))
         value, pdf = bsdf.eval_pdf(ctx, si, wo_v)
         out += [np.asarray(value, dtype=float).reshape(-1)[:3], np.asarray(pdf, dtype=float).reshape(-1)[:1]]
         for s1, s2 in ((0.2, [0.3, 0.7]), (0.55, [0.8, 0.1]), (0.9, [0.45, 0.5])):

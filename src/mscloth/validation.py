@@ -36,16 +36,16 @@ def footprint_expectation(bsdf, uv, half_texels, tile_texels, wi, wo, n=20000, s
     over uniformly placed control-variate residual texels, uniform SAT corner rounding and
     probe choice, with the footprint shaded whole (the footprint branch, whatever its size)."""
     si = footprint_interaction(n, uv, half_texels, tile_texels, wi)
-    enabled = bsdf._enabled(_non_delta_context())
-    fr = bsdf._frame(si, True)
+    enabled = bsdf.enabled(_non_delta_context())
+    fr = bsdf.frame(si, True)
     rng = np.random.default_rng(seed)
     xi = mi.Point2f(rng.random(n), rng.random(n))
     xi_round = mi.Point2f(rng.random(n), rng.random(n))
     u_probe = mi.Float(rng.random(n))
-    st = bsdf._footprint_state(si, fr, enabled, xi, xi_round, u_probe)
-    value = bsdf._eval_footprint(fr, st, bsdf._mirror(fr, mi.Vector3f(_unit(wo))), enabled)
+    st = bsdf.estimator.state(si, fr, enabled, xi, xi_round, u_probe)
+    value = bsdf.estimator.eval(fr, st, bsdf.mirror(fr, mi.Vector3f(_unit(wo))), enabled)
     v = np.array(value)[0]
-    return float(v.mean()), float(v.std() / np.sqrt(n)), bool(np.array(st["fp"]["use"])[0])
+    return float(v.mean()), float(v.std() / np.sqrt(n)), bool(np.array(st.fp.use)[0])
 
 
 def brute_force(params: dict, uv, half_texels, tile_texels, wi, wo, n=200000, seed=2):

@@ -1,0 +1,548 @@
+"""The footprint (multi-scale) estimator of the ``cloth`` BSDF: the pixel footprint's probe
+box, the SAT means over it with the control-variate residual texels (Eq. 9-14 with CCV),
+and the mixture that samples it (issue 20, item 6: out of :mod:`.cloth`, so that tests and
+:mod:`mscloth.validation` call it through public methods).
+
+The estimator is one class for every Mitsuba variant: it reads ``mi`` and ``dr`` of the
+variant active when it is called, as :mod:`.cloth`'s helpers do, and asks its BSDF for the
+fibre-level pieces (texels, lobe weights, sheen, visibility, lobe pdfs, point sampling)
+and its data (tables, calibrations, parameters), at call time: calibration replaces
+``footprint_calibration`` while the BSDF is built.
+
+Texel and frame state (``fr``, the texels of :meth:`ClothBSDF.texel`) stay dicts.
+"""
+from __future__ import annotations
+
+import weakref
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+
+from ..scattering import sggx, spongecake
+from .lanes import logical_not, pick
+from .lobes import (DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN,
+                    SPECULAR_REFLECTION, SPECULAR_TRANSMISSION, with_yarn_albedo)
+from .sat_queries import RectQuery, hemisphere_bins, round_box
+
+
+@dataclass
+class Footprint:
+    """The pixel footprint of a shading point, in texel coordinates of the tile."""
+
+    #: Whether to shade the footprint whole (else fibre level at a point in it).
+    use: mi.Bool
+    #: The probe: (x0, y0, x1, y1), the box shaded whole.
+    box: tuple
+    #: (ax, ay, bx, by): the parallelogram's edges (zero where not finite).
+    edges: tuple
+
+
+@dataclass
+class FootprintState:
+    """Everything of a footprint that does not depend on the outgoing direction, shared by
+    eval, pdf and sample (:meth:`FootprintEstimator.state`)."""
+
+    fp: Footprint
+    #: The SAT query of the rounded box, and the inverse of its area.
+    q: RectQuery
+    inv_area: mi.Float
+    #: Yarn coverage and mean yarn colour over the rounded box.
+    yarn_mean: mi.Float | None = None
+    yarn_albedo: mi.Color3f | None = None
+    #: The footprint's mean t t^T over its yarn (xx, xy, xz, yy, yz, zz; mirrored frame);
+    #: None when no specular lobe is enabled.
+    moments: tuple | None = None
+    #: The control-variate residual texels (texel dicts, see ``ClothBSDF.texel``).
+    texels: list | None = None
+    #: Every cluster's mean viewer-side visibility, and the footprint's share of each
+    #: cluster's yarn; None without visibility.
+    cvis_i: list | None = None
+    fractions: list | None = None
+    #: The sampling mixture's lobe probabilities, its defensive cosine share and the
+    #: lower (transmission) part of that share.
+    probs: list | None = None
+    eps_c: mi.Float | None = None
+    eps_lower: mi.Float | None = None
+
+
+def shading_hash(si):
+    """Deterministic pseudo-random numbers per shading point, from si.uv and si.p:
+    (xi, xi_round, u), two 2D points and one number: the stratified texels, the
+    SAT rounding, and the choice between footprint and fibre-level shading and of the
+    probe (:meth:`FootprintEstimator.footprint`; xi: the point of fibre-level shading in
+    the footprint), in eval(), where Mitsuba passes no random numbers. si.p
+    varies between the samples of one pixel, whose footprints ``clothpath`` centres
+    on the same uv. Two TEAs (~40 ops each): four words give the points their top
+    24 bits each, and u the words' low bytes."""
+    def bits(x):  # 24 bits of a float's fractional part
+        return mi.UInt32((x - dr.floor(x)) * 16777216.0)
+
+    a = bits(si.uv.x * 997.0 + si.uv.y * 31.0 + si.p.x * 1.618 + si.p.z * 0.577)
+    b = bits(si.uv.y * 991.0 + si.uv.x * 37.0 + si.p.y * 1.414 + si.p.z * 0.318)
+    v0, v1 = mi.sample_tea_32(a, b)
+    v2, v3 = mi.sample_tea_32(v0, v1)
+
+    def unit24(v):  # 24 bits -> [0, 1)
+        return mi.Float(v) * (1.0 / 16777216.0)
+
+    def unit(v):  # the top 24 bits -> [0, 1)
+        return unit24(v >> 8)
+
+    low = ((v0 & 255) << 16) | ((v1 & 255) << 8) | (v2 & 255)  # 24 bits
+    return mi.Point2f(unit(v0), unit(v1)), mi.Point2f(unit(v2), unit(v3)), unit24(low)
+
+
+def edges_in_texels(bsdf, si):
+    """The pixel footprint's edges si.duv_dx, si.duv_dy in texels of ``bsdf``'s tile
+    (also for BSDFs without an estimator: ``footprint_texels``)."""
+    su, sv = bsdf.uv_scale * bsdf.tile_w, bsdf.uv_scale_v * bsdf.tile_h
+    return (si.duv_dx.x * su, si.duv_dx.y * sv), (si.duv_dy.x * su, si.duv_dy.y * sv)
+
+
+def _table_tangent(fr, tangent):
+    """A texel's tangent (mirrored frame) back in the maps' frame of the tables."""
+    return mi.Vector3f(tangent.x, tangent.y, fr["sign"] * tangent.z)
+
+
+class FootprintEstimator:
+    """The footprint BSDF of a multi-scale ``cloth`` BSDF (``bsdf.estimator``).
+
+    The tuning constants below are class attributes, so that experiments
+    (``bench/common.py``'s ``--attr NAME=VALUE``) change them for every cloth BSDF."""
+
+    #: Footprint area (texels) below which shading is fibre level, above which it is the
+    #: footprint's; linear blend between (docs/decisions.md).
+    POINT_TEXELS = 2.0
+    FOOTPRINT_TEXELS = 8.0
+    #: Most probes (slices) across a footprint (more: less overhang of their boxes where
+    #: the pixel is sheared, more variance between them).
+    MAX_PROBES = 8
+
+    # The footprint BSDF is sampled as a mixture: a lobe chosen by the footprint's
+    # averages (so the gap, diffuse and specular shares match the footprint form), the
+    # specular lobe from one of the stratified residual texels, and a defensive cosine
+    # component that keeps every direction reachable.
+    DEFENSIVE_COSINE = 0.1
+    #: The least share of the defensive cosine on either side of the surface.
+    DEFENSIVE_MIN_SIDE = 0.1
+
+    #: Without per-cluster tables, the specular residual's control variate takes the
+    #: footprint's mean visibility (unbiased) rather than each texel's cluster's.
+    CONSISTENT_VISIBILITY_CV = True
+
+    #: The control-variate residual's texels: one in each cell of a RESIDUAL_GRID^2
+    #: grid over the shaded box.
+    RESIDUAL_GRID = 2
+
+    def __init__(self, bsdf):
+        # A weak reference: the BSDF holds its estimator, and a strong one both ways would
+        # keep a deleted BSDF (and its tables, up to hundreds of MiB) alive until Python's
+        # garbage collector runs.
+        self._bsdf = weakref.ref(bsdf)
+
+    @property
+    def bsdf(self):
+        """The ``cloth`` BSDF this estimator shades for."""
+        return self._bsdf()
+
+    def shading_hash(self, si):
+        """:func:`shading_hash`: the estimator's random numbers (xi, xi_round, u) of the
+        shading point. A method, so that a test or an experiment can replace it (on one
+        estimator, or on the class)."""
+        return shading_hash(si)
+
+    # ------------------------------------------------------------------
+    # The footprint and its probe
+    # ------------------------------------------------------------------
+    def edges_texels(self, si):
+        """The pixel footprint's edges si.duv_dx, si.duv_dy in texels of this tile."""
+        return edges_in_texels(self.bsdf, si)
+
+    def footprint(self, si, fr, u, u_probe=None) -> Footprint:
+        """The pixel footprint's probe (a texel box), and whether to shade it as one.
+
+        Convention (docs/decisions.md): the footprint is the parallelogram spanned by
+        si.duv_dx and si.duv_dy, centred on si.uv. It is cut along one edge into the n
+        slices (n <= ``MAX_PROBES``) whose bounding boxes cover the least area (one for
+        an axis-aligned rectangle; the edge that does better), and one slice,
+        picked by ``u``, is shaded as its axis-aligned bounding box (the probe): as
+        hardware anisotropic filtering does, with the probes taken one per sample. The
+        expected probe is the parallelogram, not its bounding box, at one box's reads.
+
+        Footprints covering fewer than ``POINT_TEXELS`` texels are shaded fibre level at
+        a point drawn uniformly in the parallelogram (exactly the fibre-level BSDF at
+        si.uv for a zero footprint), those over ``FOOTPRINT_TEXELS`` whole, and those
+        between by one or the other, picked by ``u`` with a weight linear in the
+        area: both estimate the same footprint mean, and a footprint of a few texels
+        was noisier than a fibre-level sample. ``u_probe`` (default: ``u`` rescaled
+        within the footprint's share) picks the probe.
+        """
+        (ax, ay), (bx, by) = self.edges_texels(si)
+        finite = dr.isfinite(ax) & dr.isfinite(ay) & dr.isfinite(bx) & dr.isfinite(by)
+        la2, lb2 = ax * ax + ay * ay, bx * bx + by * by
+        area = dr.abs(ax * by - ay * bx)
+        length = dr.safe_sqrt(dr.maximum(la2, lb2))
+        # Width across the long edge; a degenerate (line) footprint covers a texel's width.
+        width = area * dr.select(length > 0.0, dr.rcp(length), 0.0)
+        texels = dr.maximum(length, 1.0) * dr.maximum(width, 1.0)
+        p_use = dr.clip((texels - self.POINT_TEXELS) * (1.0 / (self.FOOTPRINT_TEXELS - self.POINT_TEXELS)),
+                        0.0, 1.0)
+        p_use = dr.select(finite & (length > 0.0), p_use, 0.0)
+        # (p_use > 0) first: a zero footprint of constant si.duv_dx/dy is then a literal
+        # False, and the symbolic if traces the fibre-level branch alone.
+        use = (p_use > 0.0) & (u < p_use)
+        if u_probe is None:
+            u_probe = dr.minimum(u * dr.select(p_use > 0.0, dr.rcp(p_use), 0.0), 0.99999994)
+            u_probe_a = u_probe_b = u_probe
+            offset = fr.get("pixel_offset")
+            if offset is not None:
+                # The slice the sample lies in: with a stratified sampler (multijitter
+                # stratifies each pixel axis), a pixel's samples spread evenly over
+                # its slices, and the probes' variance between them mostly cancels.
+                known = (offset.x >= -0.5) & (offset.y >= -0.5)
+                u_probe_a = dr.select(known, dr.clip(offset.x + 0.5, 0.0, 0.99999994), u_probe)
+                u_probe_b = dr.select(known, dr.clip(offset.y + 0.5, 0.0, 0.99999994), u_probe)
+        else:
+            u_probe_a = u_probe_b = u_probe
+
+        def slicing(l_x, l_y, l2, s_x, s_y):
+            """(n, the n slices' bounding-box area) cutting edge l into n slices: the n
+            that minimises that area, |lx||ly|/n + |lx||sy| + |sx||ly| + n|sx||sy|, at
+            most one per texel of l and MAX_PROBES (1 for an axis-aligned rectangle)."""
+            lxy = dr.abs(l_x * l_y)
+            sxy = dr.abs(s_x * s_y)
+            best = dr.safe_sqrt(lxy * dr.rcp(dr.maximum(sxy, 1e-12)))
+            n = dr.clip(dr.round(dr.minimum(best, dr.safe_sqrt(l2))), 1.0, float(self.MAX_PROBES))
+            box = (dr.abs(l_x) * dr.rcp(n) + dr.abs(s_x)) * (dr.abs(l_y) * dr.rcp(n) + dr.abs(s_y))
+            return n, n * box
+
+        # Slices along whichever edge leaves the probes less area outside the pixel.
+        n_a, cover_a = slicing(ax, ay, la2, bx, by)
+        n_b, cover_b = slicing(bx, by, lb2, ax, ay)
+        along_a = cover_a <= cover_b
+        n = dr.select(along_a, n_a, n_b)
+        u_probe = dr.select(along_a, u_probe_a, u_probe_b)  # edge a: the pixel's x step
+        lx, ly = dr.select(along_a, ax, bx), dr.select(along_a, ay, by)
+        sx, sy = dr.select(along_a, bx, ax), dr.select(along_a, by, ay)
+        offset = (dr.floor(u_probe * n) + 0.5) * dr.rcp(n) - 0.5
+        cx = fr["x"] + dr.select(finite, offset * lx, 0.0)
+        cy = fr["y"] + dr.select(finite, offset * ly, 0.0)
+        # The probe: the box of the slice's own area and centre, its sides in the ratio
+        # of the slice's extents (square roots of its covariance's diagonal). Where the
+        # slice's ends are slanted the box cuts into it as far as it reaches beyond,
+        # so the pixel's edges blur over a fraction of a slice instead of the
+        # bounding box's overhang adding texels from outside the pixel: 2-10% of bias
+        # at 12^2 texels sheared (bench/footprint_bias_scan.py, docs/decisions.md).
+        px, py = lx * dr.rcp(n), ly * dr.rcp(n)
+        var_x = px * px + sx * sx
+        var_y = py * py + sy * sy
+        slice_area = dr.abs(px * sy - py * sx)
+        aspect = dr.sqrt(dr.sqrt(var_x * dr.rcp(dr.maximum(var_y, 1e-30))))
+        area_ok = (slice_area > 1e-6) & (var_x > 0.0) & (var_y > 0.0)
+        rx_fit = 0.5 * dr.sqrt(slice_area) * aspect
+        ry_fit = 0.25 * slice_area * dr.rcp(dr.maximum(rx_fit, 1e-30))
+        rx = dr.select(area_ok, rx_fit, 0.5 * (dr.abs(px) + dr.abs(sx)))
+        ry = dr.select(area_ok, ry_fit, 0.5 * (dr.abs(py) + dr.abs(sy)))
+        rx = dr.select(finite, dr.maximum(rx, 0.5), 0.5)
+        ry = dr.select(finite, dr.maximum(ry, 0.5), 0.5)
+        # The point branch's parallelogram (zero where not finite: the texel at si.uv).
+        edges = tuple(dr.select(finite, e, 0.0) for e in (ax, ay, bx, by))
+        return Footprint(use=use, box=(cx - rx, cy - ry, cx + rx, cy + ry), edges=edges)
+
+    def point_in_footprint(self, fr, fp: Footprint, xi):
+        """Texel coordinates of the point ``xi`` (uniform in [0,1)^2) of the footprint's
+        parallelogram, where the fibre-level branch shades."""
+        ax, ay, bx, by = fp.edges
+        return (fr["x"] + (xi.x - 0.5) * ax + (xi.y - 0.5) * bx,
+                fr["y"] + (xi.x - 0.5) * ay + (xi.y - 0.5) * by)
+
+    def rounded_box(self, fp: Footprint, xi_round):
+        """The footprint's probe with its corners rounded stochastically to whole texels
+        by ``xi_round`` (the box that is shaded), and its SAT query."""
+        box = round_box(*fp.box, xi_round.x, xi_round.y)
+        return box, self.bsdf.footprint_data.scalar_sats.query_on_grid(*box)
+
+    # ------------------------------------------------------------------
+    # The footprint's state: SAT means, residual texels, sampling mixture
+    # ------------------------------------------------------------------
+    def state(self, si, fr, enabled, xi=None, xi_round=None, u_probe=None) -> FootprintState:
+        """Everything of the footprint that does not depend on the outgoing direction,
+        computed once per shading point and shared by eval, pdf and sample: the SAT
+        means over the footprint, the control-variate residual texel, the viewer-side
+        visibilities and the sampling mixture.
+
+        ``xi`` (2D in [0,1)) places the residual texels, ``xi_round`` rounds the SATs'
+        corners and ``u_probe`` picks the probe along the footprint (:meth:`footprint`);
+        by default all three are a hash of (si.uv, si.p), so eval is a deterministic
+        function of (si, wo)."""
+        bsdf = self.bsdf
+        fd = bsdf.footprint_data
+        sats = fd.scalar_sats
+        hashed = self.shading_hash(si)
+        if xi is None:
+            xi, xi_round = hashed[:2]
+        xi_round = mi.Point2f(0.5, 0.5) if xi_round is None else xi_round
+        fp = self.footprint(si, fr, hashed[2], u_probe)
+        # The footprint shaded is its box with the corners rounded stochastically to
+        # whole texels (expected extent: the footprint's), and every mean is the exact
+        # mean over that rounded box: one SAT read per corner and channel instead of four
+        # (these reads dominate the cost), and means that stay means. Normalised by the
+        # exact area instead, the integrals were unbiased but not bounded: at 2-4 texels
+        # the yarn coverage of a gap-free footprint read 0.54-1.62, so the gap lobe let
+        # light through where there are no gaps (its negative values cannot be sampled)
+        # and lobe probabilities reached -39 and +40 (docs/decisions.md).
+        box, q = self.rounded_box(fp, xi_round)
+        inv_area = dr.rcp(q.area)
+
+        # Every channel at once (gap, moments, cluster histogram, albedo): packets of four
+        # neighbouring channels per corner read. Uniformly coloured yarns stop before the
+        # albedo channels (4 packets instead of 5 with 8 clusters).
+        needed = sats.channels if bsdf.uniform_yarn_albedo is None else -(-fd.ALBEDO // 4) * 4
+        means = [value * inv_area for value in sats.integrals(q, 0, needed)]
+
+        def mean(channel):
+            return means[channel]
+
+        st = FootprintState(fp=fp, q=q, inv_area=inv_area)
+        st.yarn_mean = yarn_mean = mean(fd.GAP)
+        inv_yarn = dr.select(yarn_mean > 1e-6, dr.rcp(yarn_mean), 0.0)
+        if bsdf.uniform_yarn_albedo is not None:
+            st.yarn_albedo = mi.Color3f(*bsdf.uniform_yarn_albedo)
+        else:
+            st.yarn_albedo = mi.Color3f(*[mean(fd.ALBEDO + c) * inv_yarn for c in range(3)])
+        if enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]:
+            # The footprint's mean SGGX matrix over its yarn texels:
+            # S = I - (1 - alpha^2) <t t^T>, from the mean of t t^T.
+            m = [mean(fd.MOMENTS + j) * inv_yarn for j in range(6)]
+            sgn = fr["sign"]
+            st.moments = (m[0], m[1], sgn * m[2], m[3], sgn * m[4], m[5])
+
+        # The texels of the control-variate residual, one uniform in each cell of a grid
+        # over the footprint (stratified: 1/n of the variance of one texel or less).
+        st.texels = texels = self._stratified_texels(fr, box, xi)
+        if bsdf.use_visibility:
+            st.cvis_i = cvis_i = fd.cluster_visibilities(fr["wi"], fr["flip"])
+            for t_ in texels:
+                t_["cluster"] = fd.cluster_of(t_["ix"], t_["iy"])
+                t_["vis"] = fd.texel_visibility(t_["ix"], t_["iy"])
+                t_["v_i"] = fd.visibility_of(t_["vis"], fr["wi"], fr["flip"])
+                t_["cvis_i"] = pick(cvis_i, t_["cluster"])
+            # The footprint's share of each cluster's yarn (diffuse lobes, specular base).
+            st.fractions = [mean(fd.CLUSTERS + c) for c in range(fd.clusters)]
+
+        # The sampling mixture: lobes chosen by the footprint's own averages (yarn
+        # coverage, yarn colour, mean SGGX matrix), the specular lobe from the tangent
+        # of one of the residual texels, and a defensive cosine component.
+        k = with_yarn_albedo(fr["k"], st.yarn_albedo)
+        scattered = mi.Float(0.0)
+        if st.moments is not None:
+            sigma_i = self._mean_sigma(st, fr["wi"])
+            scattered = 1.0 - spongecake.unscattered_transmittance_from(sigma_i, fr["wi"], bsdf.thickness)
+        st.probs = bsdf.lobe_weights(k, fr["wi"], yarn_mean, fr["t_sheen_i"], scattered, enabled,
+                                     bsdf.footprint_calibration)
+        # Scaled by the square root of the yarn lobes' share: it guards them (the residual
+        # texels' tangents may miss some of the footprint's), and the sheen, sampled from
+        # its own table, needs no guard. A fixed share spent a tenth of the samples at
+        # grazing angles, where the sheen is almost all (weight variance at 88 degrees:
+        # 0.029 -> 0.001); the root keeps a little more at middle angles, where the cosine
+        # still helps the transmitted flake lobe (docs/decisions.md).
+        probs = st.probs
+        yarn_share = probs[SPECULAR_REFLECTION] + probs[DIFFUSE_REFLECTION] + probs[DIFFUSE_TRANSMISSION]
+        st.eps_c = eps_c = self.DEFENSIVE_COSINE * dr.sqrt(yarn_share)
+        # Its lower (transmission) share follows the diffuse lobes' split, at least a
+        # tenth on either side: at grazing angles a fixed half wasted 5% of samples.
+        p_dr, p_dt = probs[DIFFUSE_REFLECTION], probs[DIFFUSE_TRANSMISSION]
+        diffuse = p_dr + p_dt
+        lower = dr.select(diffuse > 0.0, p_dt / dr.select(diffuse > 0.0, diffuse, 1.0), 0.5)
+        st.eps_lower = eps_c * dr.clip(lower, self.DEFENSIVE_MIN_SIDE, 1.0 - self.DEFENSIVE_MIN_SIDE)
+        return st
+
+    def _mean_sigma(self, st: FootprintState, w):
+        """sigma(w) of the footprint's mean SGGX matrix S = I - (1 - alpha^2) <t t^T>."""
+        m_xx, m_xy, m_xz, m_yy, m_yz, m_zz = st.moments
+        roughness = self.bsdf.roughness
+        alpha2 = roughness * roughness
+        q = (w.x * w.x * m_xx + w.y * w.y * m_yy + w.z * w.z * m_zz
+             + 2.0 * (w.x * w.y * m_xy + w.x * w.z * m_xz + w.y * w.z * m_yz))
+        return dr.safe_sqrt(dr.maximum(1.0 - (1.0 - alpha2) * q, alpha2))
+
+    @staticmethod
+    def _strata(g):
+        """(cell x, cell y, offset x, offset y) of each residual texel: the offsets of
+        their shared random numbers form a rotated lattice (2x2: the quarter steps), so
+        each texel stays uniform in its cell and together they spread further."""
+        if g == 2:
+            return ((0.0, 0.0, 0.0, 0.0), (1.0, 0.0, 0.5, 0.25), (0.0, 1.0, 0.25, 0.75), (1.0, 1.0, 0.75, 0.5))
+        n = g * g
+        return tuple((float(k % g), float(k // g), ((k * 7) % n) / n, ((k * 5) % n + 0.5) / n) for k in range(n))
+
+    def _stratified_texels(self, fr, box, xi):
+        """The residual texels, one uniform in each cell of the rounded box the SAT
+        means cover (from ``xi``)."""
+        bsdf = self.bsdf
+        x0, y0, x1, y1 = box
+        g = self.RESIDUAL_GRID
+        texels = []
+        for qx, qy, cx, cy in self._strata(g):
+            sx = xi.x + cx
+            sy = xi.y + cy
+            u = (qx + sx - dr.floor(sx)) * (1.0 / g)  # in [0, 1)
+            v = (qy + sy - dr.floor(sy)) * (1.0 / g)
+            texels.append(bsdf.texel(fr, x0 + u * (x1 - x0), y0 + v * (y1 - y0)))
+        return texels
+
+    # ------------------------------------------------------------------
+    # The footprint BSDF: eval, pdf, sample (mirrored frame)
+    # ------------------------------------------------------------------
+    def eval(self, fr, st: FootprintState, wo, enabled):
+        """Footprint-averaged non-delta f*|cos o| (Eq. 9-14 with CCV), mirrored frame."""
+        bsdf = self.bsdf
+        fd = bsdf.footprint_data
+        wi = fr["wi"]
+        k = fr["k"]
+        texels = st.texels
+        cos_o = wo.z
+        up = cos_o > 0.0
+        valid = (wi.z > spongecake.COS_EPSILON) & (dr.abs(cos_o) > spongecake.COS_EPSILON)
+        yarn_albedo = st.yarn_albedo
+
+        if bsdf.use_visibility:
+            # Per residual texel: V(p, i, o) and its cluster's mean v_c(i) v_c(o).
+            cvis_o = bsdf.cluster_visibilities_o(fr, wo)
+            v_p = [t_["v_i"] * bsdf.visibility_o(t_, wo) for t_ in texels]
+            vbar_p = [t_["cvis_i"] * pick(cvis_o, t_["cluster"]) for t_ in texels]
+
+        value, under_fuzz = bsdf.sheen_and_fuzz(fr, wo, enabled)
+        reflection = mi.Color3f(0.0)
+        transmission = mi.Color3f(0.0)
+        if enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]:
+            h = dr.normalize(wi + wo)
+            h = dr.select(h.z < 0.0, -h, h)  # D is even
+            # The tables hold D of the maps' own tangents; the mirrored frame flips their
+            # z, so a viewer below looks up the mirror image of h (then folded up again).
+            h_table = mi.Vector3f(h.x, h.y, fr["sign"] * h.z)
+            h_table = dr.select(h_table.z < 0.0, -h_table, h_table)
+            # The four bins around h with their bilinear weights, deterministically: a
+            # random pick of one (a quarter of the reads) was most of the estimator's own
+            # noise on shiny cloth near and in the middle distance (docs/decisions.md).
+            bins_h = hemisphere_bins(h_table, fd.dr)
+            d_yarn = fd.d_integral(st.q, *bins_h) * st.inv_area  # mean over P of D I
+            # f_rs per unit D: G of the footprint's mean SGGX matrix (g_bar), and of each
+            # residual texel's own tangent (g_k). The residual corrects mean(D) g_bar
+            # towards mean(D g), which differ where D and the tangent correlate (grazing
+            # highlights: 10-17% low without it).
+            def g_of(sigma_i, sigma_o):
+                return spongecake.eval_specular_from(1.0, sigma_i, sigma_o, wi, wo, bsdf.thickness)[0]
+
+            g_bar = g_of(self._mean_sigma(st, wi), self._mean_sigma(st, wo))
+            d_k = [sggx.ndf(h, t_["tangent"], bsdf.roughness) * t_["yarn"] for t_ in texels]
+            # The same texels' D as the tables bin it (tangents in the tables' frame): the
+            # control variate that removes the bins' bias from the base.
+            dbin_k = [fd.binned_ndf(*bins_h, _table_tangent(fr, t_["tangent"]), bsdf.roughness) * t_["yarn"]
+                      for t_ in texels]
+            g_k = [g_of(sggx.projected_area(wi, t_["tangent"], bsdf.roughness),
+                        sggx.projected_area(wo, t_["tangent"], bsdf.roughness)) for t_ in texels]
+            if bsdf.use_visibility:
+                # Alg. 4's visibility: the mean v_c of the residual texels' clusters.
+                texel_mean = sum(vbar_p) * (1.0 / len(vbar_p))
+                vbar_spec = vbar_p
+                if fd.per_cluster:
+                    base = mi.Float(0.0)
+                    for c in range(fd.clusters):
+                        base += st.cvis_i[c] * cvis_o[c] * fd.d_integral(st.q, *bins_h, c)
+                    base *= st.inv_area
+                elif fd.d_cluster_tile is not None:
+                    # Each cluster's visibility weighted by its share of the footprint's D:
+                    # its share of the footprint times its mean D over the tile. Exact for
+                    # footprints of whole tiles; Alg. 4's texel_mean (the fallback) is off
+                    # by -Cov(D, v) at every size (docs/decisions.md).
+                    m_c = fd.cluster_d_means(*bins_h)
+                    num = mi.Float(0.0)
+                    den = mi.Float(0.0)
+                    for c in range(fd.clusters):
+                        w_c = st.fractions[c] * m_c[c]
+                        num += w_c * st.cvis_i[c] * cvis_o[c]
+                        den += w_c
+                    w_bar = dr.select(den > 0.0, num / dr.select(den > 0.0, den, 1.0), texel_mean)
+                    base = d_yarn * w_bar
+                    if self.CONSISTENT_VISIBILITY_CV:
+                        # The residual's control variate takes the base's own visibility,
+                        # so base + residual is unbiased at every footprint size; with
+                        # each texel's cluster visibility instead it was 2-19% off below
+                        # a tile (bench/footprint_bias_scan.py, docs/decisions.md).
+                        vbar_spec = [w_bar] * len(texels)
+                else:
+                    base = d_yarn * texel_mean
+                residual = mi.Float(0.0)
+                for d, db, g, v, vbar in zip(d_k, dbin_k, g_k, v_p, vbar_spec):
+                    residual += d * v * g - db * vbar * g_bar
+                # An unbiased control-variate estimate: it can dip below zero for the
+                # residual texels (V(p) = 0 under a bright base); clamping it biased
+                # grazing highlights by up to +90% (docs/decisions.md), so we do not.
+                spec = base * g_bar + residual * (1.0 / len(texels))
+            else:
+                residual = mi.Float(0.0)
+                for d, db, g in zip(d_k, dbin_k, g_k):
+                    residual += d * g - db * g_bar
+                spec = d_yarn * g_bar + residual * (1.0 / len(texels))
+            if enabled[SPECULAR_REFLECTION]:
+                reflection += k["specular_albedo"] * yarn_albedo * spec
+            if enabled[SPECULAR_TRANSMISSION]:
+                transmission += k["specular_transmittance"] * yarn_albedo * spec
+        if enabled[DIFFUSE_REFLECTION] or enabled[DIFFUSE_TRANSMISSION]:
+            if bsdf.use_visibility:
+                # Eq. 14 through the cluster histogram, plus the same residual texel.
+                yarn_visible = mi.Float(0.0)
+                for t_, v, vbar in zip(texels, v_p, vbar_p):
+                    yarn_visible += t_["yarn"] * (v - vbar) * (1.0 / len(texels))
+                for c in range(fd.clusters):
+                    yarn_visible += st.cvis_i[c] * cvis_o[c] * st.fractions[c]
+            else:
+                yarn_visible = st.yarn_mean
+            cosine = dr.abs(cos_o) * dr.inv_pi * yarn_visible
+            if enabled[DIFFUSE_REFLECTION]:
+                reflection += k["diffuse_albedo"] * yarn_albedo * cosine
+            if enabled[DIFFUSE_TRANSMISSION]:
+                transmission += k["diffuse_transmittance"] * yarn_albedo * cosine
+        value += under_fuzz * dr.select(up, reflection, transmission)
+        return dr.select(valid, value, 0.0)
+
+    def pdf(self, fr, st: FootprintState, wo, enabled):
+        """Density of the footprint mixture's non-delta directions (mirrored frame)."""
+        wi = fr["wi"]
+        valid = (wi.z > spongecake.COS_EPSILON) & (dr.abs(wo.z) > spongecake.COS_EPSILON)
+        pdf = self.bsdf.lobes_pdf(wi, wo, st.probs, [t_["tangent"] for t_ in st.texels], enabled)
+        eps_c, eps_lower = st.eps_c, st.eps_lower
+        eps_side = dr.select(wo.z > 0.0, eps_c - eps_lower, eps_lower)
+        return dr.select(valid, (1.0 - eps_c) * pdf + eps_side * dr.abs(wo.z) * dr.inv_pi, 0.0)
+
+    def sample(self, fr, st: FootprintState, enabled, sample1, sample2, active):
+        """A direction from the footprint mixture:
+        (wo mirrored, ok, component, gap_ok, gap_pdf, gap_value)."""
+        texels, fp_probs, eps_c = st.texels, st.probs, st.eps_c
+        # Split sample1: defensive cosine | the footprint's lobes; within the specular
+        # share, which of the residual texels lends its tangent.
+        pick_def_cos = sample1 < eps_c
+        u = (sample1 - eps_c) / (1.0 - eps_c)
+        u_spec = (u - fp_probs[SHEEN]) / dr.select(fp_probs[SPECULAR_REFLECTION] > 0.0,
+                                                   fp_probs[SPECULAR_REFLECTION], 1.0)
+        quad = mi.UInt32(dr.clip(dr.floor(u_spec * len(texels)), 0, len(texels) - 1))
+        chosen = dict(texels[0])
+        for q in range(1, len(texels)):
+            chosen["tangent"] = dr.select(quad == q, texels[q]["tangent"], chosen["tangent"])
+
+        wo, ok, component, gap_ok = self.bsdf.sample_point(chosen, fp_probs, enabled, u, sample2, active)
+        wo_cos = mi.warp.square_to_cosine_hemisphere(sample2)
+        # The defensive cosine side: the lower or upper part of its sample1 slice.
+        lower = sample1 < st.eps_lower
+        wo_cos.z = dr.select(lower, -wo_cos.z, wo_cos.z)
+        wo = dr.select(pick_def_cos, wo_cos, wo)
+        viewer_ok = active & (fr["wi"].z > spongecake.COS_EPSILON)
+        ok = dr.select(pick_def_cos, viewer_ok, ok)
+        component = dr.select(pick_def_cos, dr.select(lower, DIFFUSE_TRANSMISSION, DIFFUSE_REFLECTION),
+                              component)
+        gap_ok &= logical_not(pick_def_cos)
+        gap_pdf = (1.0 - eps_c) * fp_probs[GAP]
+        gap_value = fr["t_sheen_i"] * fr["t_sheen_i"] * (1.0 - st.yarn_mean)
+        return wo, ok, component, gap_ok, gap_pdf, gap_value
