@@ -36,6 +36,7 @@ def main(argv=None) -> int:
     parser.add_argument("--set", action="append", default=[], help="cloth parameter NAME=VALUE")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--shear", type=float, default=None, help="every footprint's shear (default: random in [-1, 1])")
+    parser.add_argument("--rotate", action="store_true", help="turn each footprint by a random angle too")
     args = parser.parse_args(argv)
     mi = setup_mitsuba()
     from mscloth import validation
@@ -53,9 +54,11 @@ def main(argv=None) -> int:
         if args.shear is not None:
             shear = args.shear
         half = halves[k % len(halves)]
-        si = validation.sheared_interaction(40000, uv, half, shear, TILE, wi)
+        rotation = float(rng.uniform(0.0, np.pi)) if args.rotate else 0.0
+        si = validation.sheared_interaction(40000, uv, half, shear, TILE, wi, rotation)
         ms, ms_err = validation.shading_expectation(bsdf, si, wo, seed=k)
-        bf, bf_err = validation.parallelogram_brute_force(params, uv, half, shear, TILE, wi, wo, n=80000, seed=k + 100)
+        bf, bf_err = validation.parallelogram_brute_force(params, uv, half, shear, TILE, wi, wo, n=80000, seed=k + 100,
+                                                          rotation=rotation)
         err = float(np.hypot(ms_err, bf_err))
         rows.append((half, (ms - bf) / max(bf, 1e-9), (ms - bf) / max(err, 1e-12), err / max(bf, 1e-9), wi, wo,
                      uv, shear))

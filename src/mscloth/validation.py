@@ -60,13 +60,21 @@ def brute_force(params: dict, uv, half_texels, tile_texels, wi, wo, n=200000, se
     return float(v.mean()), float(v.std() / np.sqrt(n))
 
 
-def sheared_interaction(n: int, uv, a_texels: float, shear: float, tile_texels: int, wi):
+def _edges(a_texels: float, shear: float, rotation: float):
+    """The pixel footprint's edges (a, 0) and (shear a, a), turned by ``rotation`` radians."""
+    c, s = float(np.cos(rotation)), float(np.sin(rotation))
+    return ((a_texels * c, a_texels * s),
+            (shear * a_texels * c - a_texels * s, shear * a_texels * s + a_texels * c))
+
+
+def sheared_interaction(n: int, uv, a_texels: float, shear: float, tile_texels: int, wi, rotation: float = 0.0):
     """``n`` lanes at ``uv`` with the sheared pixel footprint of edges (a, 0) and
-    (shear a, a) texels (uv_scale 1, a tile of ``tile_texels`` texels)."""
+    (shear a, a) texels, turned by ``rotation`` radians (uv_scale 1, a tile of
+    ``tile_texels`` texels)."""
     si = footprint_interaction(n, uv, 0.0, tile_texels, wi)
-    d = a_texels / tile_texels
-    si.duv_dx = mi.Vector2f(d, 0.0)
-    si.duv_dy = mi.Vector2f(shear * d, d)
+    (ax, ay), (bx, by) = _edges(a_texels, shear, rotation)
+    si.duv_dx = mi.Vector2f(ax / tile_texels, ay / tile_texels)
+    si.duv_dy = mi.Vector2f(bx / tile_texels, by / tile_texels)
     return si
 
 
@@ -81,11 +89,13 @@ def to_tilted(v, a, b):
                        c * v.z - (kx * v.y - ky * v.x))
 
 
-def _pixel_points(n: int, a_texels: float, shear: float, tile_texels: int, seed: int):
-    """(du, dv): ``n`` uniform points of the sheared pixel footprint, offsets from its centre."""
+def _pixel_points(n: int, a_texels: float, shear: float, tile_texels: int, seed: int, rotation: float = 0.0):
+    """(du, dv): ``n`` uniform points of the (turned) sheared pixel footprint, offsets from
+    its centre."""
     rng = np.random.default_rng(seed)
     s, t = rng.random(n) - 0.5, rng.random(n) - 0.5
-    return (s + t * shear) * a_texels / tile_texels, t * a_texels / tile_texels
+    (ax, ay), (bx, by) = _edges(a_texels, shear, rotation)
+    return (s * ax + t * bx) / tile_texels, (s * ay + t * by) / tile_texels
 
 
 def curved_pixel_expectation(bsdf, n: int, uv, a_texels: float, shear: float, tile_texels: int, wi, wo,
@@ -118,12 +128,12 @@ def shading_expectation(bsdf, si, wo, seed=3):
 
 
 def parallelogram_brute_force(params: dict, uv, a_texels: float, shear: float, tile_texels: int, wi, wo,
-                              n=200000, seed=2, curvature: float = 0.0):
-    """(mean, standard error) of the fibre-level BSDF over the sheared footprint of
-    :func:`sheared_interaction`, each point shaded at its own normal (``curvature``: see
+                              n=200000, seed=2, curvature: float = 0.0, rotation: float = 0.0):
+    """(mean, standard error) of the fibre-level BSDF over the sheared (and turned) footprint
+    of :func:`sheared_interaction`, each point shaded at its own normal (``curvature``: see
     :func:`curved_pixel_expectation`)."""
     point = mi.load_dict(dict(params, multiscale=False))
-    du, dv = _pixel_points(n, a_texels, shear, tile_texels, seed)
+    du, dv = _pixel_points(n, a_texels, shear, tile_texels, seed, rotation)
     si = dr.zeros(mi.SurfaceInteraction3f, n)
     si.uv = mi.Point2f(uv[0] + du, uv[1] + dv)
     # The point's normal tilts by curvature * (du, dv): directions in its own frame.

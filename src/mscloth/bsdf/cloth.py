@@ -114,10 +114,11 @@ back side sees the same maps mirrored through the surface.
    * - unbiased_ccv
      - boolean
      - false
-     - Per-cluster control-variate base: unbiased at every footprint size, for 8x the
-       directional SAT memory. The default base weighs each visibility cluster by its share
-       of the footprint's D: exact over whole tiles, less biased than the paper's Alg. 4
-       below that (``bench/RESULTS.md``).
+     - Per-cluster control-variate base: each residual texel's control variate takes its
+       own cluster's visibility (less noise below a tile), for 8x the directional SAT
+       memory and about twice the shading time. Both bases are unbiased: the default one
+       weighs each cluster by its share of the footprint's D, and its control variate takes
+       that mean visibility (``docs/decisions.md``).
    * - parallax
      - boolean
      - false

@@ -27,7 +27,9 @@ the scene).
 * first hit: the camera's ray differentials, rescaled to the whole pixel (Mitsuba scales
   them by 1/sqrt(spp)), intersected with the tangent plane; BSDFs that shade whole
   footprints (``footprint_shading``: multi-scale ``cloth``) get the uv of the pixel centre
-  (perspective and orthographic cameras), so a pixel is its footprint's average;
+  (perspective and orthographic cameras), so a pixel is its footprint's average, and the
+  camera sample's offset in its pixel (``pixel_offset`` of ``eval_pdf_sample_n``): the part
+  of the footprint that the sample stands for;
 * later hits: a ray cone whose width grows with distance and whose spread grows at each
   non-delta bounce by 2/sqrt(pi pdf) (see :mod:`mscloth.integrators.footprint`);
 * after a non-delta bounce (``scattered_footprints`` false, the default): a zero footprint,
@@ -37,8 +39,9 @@ the scene).
   cloth with the footprint of their vertex: the ray cone continued from the first hit and
   along delta chains, a point after a rough bounce.
 
-Footprint convention: the footprint of a shading point is the axis-aligned UV rectangle
-centred on ``si.uv`` with half-widths 1/2 (|du/dx| + |du/dy|) and 1/2 (|dv/dx| + |dv/dy|).
+Footprint convention: the footprint of a shading point is the UV parallelogram centred on
+``si.uv`` spanned by ``si.duv_dx`` and ``si.duv_dy`` (its bounding rectangle has half-widths
+1/2 (|du/dx| + |du/dy|) and 1/2 (|dv/dx| + |dv/dy|)).
 
 .. list-table::
    :header-rows: 1
