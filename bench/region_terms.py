@@ -51,37 +51,17 @@ def frozen_hash(names):
     return hashed
 
 
-def _scene(name: str, width: int, height: int, lights, params: dict, max_depth: int | None = None,
-           multiscale: bool = True):
-    """The multi-scale (or brute-force) scene with only ``lights``, the cloth ``params`` and,
-    if given, the integrator's ``max_depth`` (2: direct light only)."""
-    from mscloth.compare import scene_dict
-    from mscloth.error_budget import LIGHTS
-    from mscloth.loading import load_dict
-    from mscloth.scenes.builtin import set_cloth_parameters
-
-    scene = scene_dict(name, width, height, multiscale)
-    for key in LIGHTS["both"]:
-        if key not in lights:
-            del scene[key]
-    if params:
-        set_cloth_parameters(scene, **params)
-    if max_depth is not None:
-        scene["integrator"]["max_depth"] = max_depth
-    return load_dict(scene)
-
-
 _DIRECT_REFERENCES = {}
 
 
 def direct_reference(name: str, width: int, height: int, spp: int):
     """(image, variance of its mean) of brute force, direct sunlight alone, at ``spp``."""
     from mscloth.compare import timed_render
-    from mscloth.error_budget import LIGHTS
+    from mscloth.error_budget import LIGHTS, lit_scene
 
     key = (name, width, height, spp)
     if key not in _DIRECT_REFERENCES:
-        scene = _scene(name, width, height, LIGHTS["sun"], {}, 2, multiscale=False)
+        scene = lit_scene(name, width, height, False, LIGHTS["sun"], max_depth=2)
         a, b = (timed_render(scene, spp // 2, seed).image.astype(np.float64) for seed in (7001, 7002))
         _DIRECT_REFERENCES[key] = (0.5 * (a + b), 0.25 * (a - b) ** 2)
     return _DIRECT_REFERENCES[key]
@@ -98,7 +78,7 @@ def measure(name: str, width: int, height: int, attrs: dict, params: dict, rende
     reference of it rendered here at ``direct_reference_spp``); seconds per sample per pixel
     of the image (the median render, sun and sky)."""
     from mscloth.compare import REGIONS, depth_and_cloth, reference_image, region_masks, timed_render
-    from mscloth.error_budget import BIAS_SEEDS, LIGHTS, NOISE_SEED, per_sample_noise, squared_bias
+    from mscloth.error_budget import BIAS_SEEDS, LIGHTS, NOISE_SEED, lit_scene, per_sample_noise, squared_bias
 
     saved = set_class_attributes(attrs)
     try:
@@ -106,7 +86,7 @@ def measure(name: str, width: int, height: int, attrs: dict, params: dict, rende
         ref, ref_var, _ = reference_image(name, width, height, 1024, quiet=True)
         out = {g: {} for g in REGIONS}
         for label, light, depth in (("sun", "sun", None), ("direct sun", "sun", 2), ("both", "both", None)):
-            scene = _scene(name, width, height, LIGHTS[light], params, depth)
+            scene = lit_scene(name, width, height, True, LIGHTS[light], max_depth=depth, **params)
             renders_ = [timed_render(scene, spp, NOISE_SEED + k) for k in range(renders)]
             noise = per_sample_noise([r.image for r in renders_], spp, ref)
             for g in REGIONS:

@@ -64,7 +64,10 @@ def squared_bias(half_a, half_b, ref, ref_var, eps: float = RELMSE_EPS) -> np.nd
     return (estimate / (ref ** 2 + eps)).mean(axis=-1)
 
 
-def _scene(name, width, height, multiscale, lights=LIGHTS["both"], **cloth):
+def lit_scene(name, width, height, multiscale, lights=LIGHTS["both"], max_depth=None, **cloth):
+    """Scene ``name`` (multi-scale or brute force) with only the emitters ``lights``, the
+    cloth parameters ``cloth`` and, if given, the integrator's ``max_depth`` (2: direct
+    light only), loaded."""
     from .compare import scene_dict
     from .loading import load_dict
     from .scenes.builtin import set_cloth_parameters
@@ -75,6 +78,8 @@ def _scene(name, width, height, multiscale, lights=LIGHTS["both"], **cloth):
             del scene[key]
     if cloth:
         set_cloth_parameters(scene, **cloth)
+    if max_depth is not None:
+        scene["integrator"]["max_depth"] = max_depth
     return load_dict(scene)
 
 
@@ -106,7 +111,7 @@ def error_budget(name: str, width: int, height: int, noise_renders: int = NOISE_
     bias = {}
     for method, multiscale in (("multiscale", True), ("bruteforce", False)):
         for light, keys in LIGHTS.items():
-            scene = _scene(name, width, height, multiscale, keys)
+            scene = lit_scene(name, width, height, multiscale, keys)
             images = [render(scene, noise_spp, NOISE_SEED + k) for k in range(noise_renders)]
             noise[method][light] = per_region(per_sample_noise(images, noise_spp, ref))
             say(f"  {name} {method} {light}: per-sample noise "
