@@ -480,11 +480,16 @@ class FootprintEstimator:
                     w_bar = dr.select(den > 0.0, num / dr.select(den > 0.0, den, 1.0), texel_mean)
                     base = d_yarn * w_bar
                     if self.CONSISTENT_VISIBILITY_CV:
-                        # The residual's control variate takes the base's own visibility,
-                        # so base + residual is unbiased at every footprint size; with
-                        # each texel's cluster visibility instead it was 2-19% off below
-                        # a tile (bench/footprint_bias_scan.py, docs/decisions.md).
-                        vbar_spec = [w_bar] * len(texels)
+                        # Below a tile the residual's control variate takes the base's own
+                        # visibility, so base + residual is unbiased at every size; each
+                        # texel's cluster visibility left it 2-57% off there. Over whole
+                        # tiles the base is exact for that one, whose residual varies far
+                        # less (a 384^2 footprint's variance ratio 0.06 against 0.41)
+                        # (bench/footprint_bias_scan.py, docs/decisions.md).
+                        x0, y0, x1, y1 = st.fp.box
+                        bsdf = self.bsdf
+                        whole_tiles = (x1 - x0 >= bsdf.tile_w) & (y1 - y0 >= bsdf.tile_h)
+                        vbar_spec = [dr.select(whole_tiles, vb, w_bar) for vb in vbar_p]
                 else:
                     base = d_yarn * texel_mean
                 residual = mi.Float(0.0)
