@@ -133,7 +133,8 @@ class FootprintEstimator:
     DEFENSIVE_MIN_SIDE = 0.1
 
     #: Without per-cluster tables, the specular residual's control variate takes the
-    #: footprint's mean visibility (unbiased) rather than each texel's cluster's.
+    #: footprint's mean visibility (unbiased) rather than each texel's cluster's, below a
+    #: tile (over whole tiles the base is exact for the latter, which varies less).
     CONSISTENT_VISIBILITY_CV = True
 
     #: The control-variate residual's texels: one in each cell of a RESIDUAL_GRID^2
