@@ -154,9 +154,9 @@ back side sees the same maps mirrored through the surface.
        pixel's parallelogram, shaded one probe per sample along its longer edge.
 
 Multi-scale shading takes the pixel footprint as the parallelogram spanned by
-``si.duv_dx`` and ``si.duv_dy`` around ``si.uv``: cut along one edge into at most 8 slices
+``si.duv_dx`` and ``si.duv_dy`` around ``si.uv``: cut along one edge into at most 16 slices
 (those whose bounding boxes cover least area; one for an axis-aligned rectangle), one slice
-per sample shaded whole as its bounding box. Footprints under 2 texels are shaded fibre level at a point drawn in the
+per sample shaded whole as the box of its own area and centre. Footprints under 2 texels are shaded fibre level at a point drawn in the
 parallelogram, those over 8 texels whole, and those between by one or the other, with a
 weight linear in the area. Direction bins of the tables are read with their bilinear
 weights.
