@@ -9,10 +9,11 @@ The equal-error speed-up of multi-scale over brute-force shading is bounded by t
   lighting and with the sun or the sky alone. Multi-scale shading removes the noise of the
   weave (visible under the sun); the noise of sampling the sky's directions is there for
   both methods.
-* **Bias.** Multi-scale shading is not brute force: its footprint probes overhang the
-  pixel's parallelogram, its default control-variate base approximates each visibility
-  cluster's share of D, and each sample shades the footprint at its own normal. The squared bias per region is estimated
-  from two independent halves of a high-spp render against the reference.
+* **Bias.** Multi-scale shading is not brute force: its probes are boxes standing for the
+  pixel's parallelogram (which they cannot tile where it is turned against the texel
+  grid), and rank-compressed directional tables keep their compression error. The squared
+  bias per region is estimated from two independent halves of a high-spp render against
+  the reference.
 
 With noise alone (no bias), the equal-error speed-up would be
 (v_bruteforce / v_multiscale) / (time per sample, multi-scale / brute force): the bound the

@@ -109,21 +109,21 @@ def curved_pixel_expectation(bsdf, n: int, uv, a_texels: float, shear: float, ti
     du, dv = _pixel_points(n, a_texels, shear, tile_texels, seed)
     a, b = mi.Float(curvature * du), mi.Float(curvature * dv)
     si.wi = to_tilted(mi.Vector3f(_unit(wi)), a, b)
-    rng = np.random.default_rng(seed + 1)
-    si.p = mi.Point3f(*(mi.Float(rng.random(n) * 10.0) for _ in range(3)))
-    v = np.array(bsdf.eval(_non_delta_context(), si, to_tilted(mi.Vector3f(_unit(wo)), a, b)))[0]
-    return float(v.mean()), float(v.std() / np.sqrt(n))
+    return shading_expectation(bsdf, si, to_tilted(mi.Vector3f(_unit(wo)), a, b), seed=seed + 1)
 
 
 def shading_expectation(bsdf, si, wo, seed=3):
     """(mean, standard error) of the red channel of ``bsdf.eval`` (non-delta lobes) over the
     lanes of ``si`` with random si.p: what a render averages over a pixel's samples at one
     uv (the shading point's hash picks the residual texels, the rounding, the probe and,
-    for footprints of a few texels, footprint or fibre-level shading)."""
+    for footprints of a few texels, footprint or fibre-level shading). ``wo``: one
+    direction (normalised here), or a Vector3f of unit directions, one per lane."""
     n = dr.width(si)
     rng = np.random.default_rng(seed)
     si.p = mi.Point3f(*(mi.Float(rng.random(n) * 10.0) for _ in range(3)))
-    v = np.array(bsdf.eval(_non_delta_context(), si, mi.Vector3f(_unit(wo))))[0]
+    if not isinstance(wo, mi.Vector3f):
+        wo = mi.Vector3f(_unit(wo))
+    v = np.array(bsdf.eval(_non_delta_context(), si, wo))[0]
     return float(v.mean()), float(v.std() / np.sqrt(n))
 
 

@@ -543,13 +543,13 @@ def make_cloth_class():
         # ------------------------------------------------------------------
         # Shared by the mi.BSDF methods
         # ------------------------------------------------------------------
-        def _point_branch(self, si, fr, enabled, wos, samples, active, fp=None):
+        def _point_branch(self, si, fr, enabled, wos, samples, active, fp=None, xi=None):
             """(values, pdfs, sample record) of the fibre-level BSDF at the texel under
-            si.uv (or, for a sub-texel footprint ``fp``, under a point drawn uniformly in
-            it), for the mirrored directions ``wos`` and, if given, one sample."""
+            si.uv (or, for a small footprint ``fp``, under the point ``xi`` of it, uniform in
+            [0,1)^2: the shading hash's), for the mirrored directions ``wos`` and, if given,
+            one sample."""
             x, y = fr["x"], fr["y"]
             if fp is not None:
-                xi = self.estimator.shading_hash(si)[0]
                 offset = fr.get("pixel_offset")
                 if offset is not None:
                     # The sample's own point of the pixel: brute force, exactly.
@@ -573,10 +573,12 @@ def make_cloth_class():
             values, pdfs = _unzip([eval_pdf(wo) for wo in wos])
             return values, pdfs, record
 
-        def _footprint_branch(self, si, fr, enabled, wos, samples, active):
-            """The same for the footprint BSDF (multi-scale shading)."""
+        def _footprint_branch(self, si, fr, enabled, wos, samples, active, fp, hashed):
+            """The same for the footprint BSDF (multi-scale shading) of footprint ``fp``,
+            with the shading hash ``hashed`` it came from."""
             estimator = self.estimator
-            st = estimator.state(si, fr, enabled)
+            xi, xi_round, _ = hashed
+            st = estimator.state(si, fr, enabled, xi, xi_round, fp=fp)
 
             def eval_pdf(wo):
                 return estimator.eval(fr, st, wo, enabled), estimator.pdf(fr, st, wo, enabled)
@@ -634,11 +636,14 @@ def make_cloth_class():
             if not self.multiscale:
                 values, pdfs, record = self._point_branch(si, fr, enabled, wos, samples, active)
             else:
-                fp = self.estimator.footprint(si, fr, self.estimator.shading_hash(si)[2])
+                # One hash and one footprint per shading point, for the branch choice and
+                # for the branch taken.
+                hashed = self.estimator.shading_hash(si)
+                fp = self.estimator.footprint(si, fr, hashed[2])
                 values, pdfs, record = _branch(
                     fp.use, (si, wos, samples),
-                    true_fn=lambda: self._footprint_branch(si, fr, enabled, wos, samples, active),
-                    false_fn=lambda: self._point_branch(si, fr, enabled, wos, samples, active, fp),
+                    true_fn=lambda: self._footprint_branch(si, fr, enabled, wos, samples, active, fp, hashed),
+                    false_fn=lambda: self._point_branch(si, fr, enabled, wos, samples, active, fp, hashed[0]),
                     label="cloth_footprint")
             values = [dr.select(active, v, 0.0) for v in values]
             pdfs = [dr.select(active, p, 0.0) for p in pdfs]

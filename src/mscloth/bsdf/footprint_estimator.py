@@ -173,10 +173,11 @@ class FootprintEstimator:
         Convention (docs/decisions.md): the footprint is the parallelogram spanned by
         si.duv_dx and si.duv_dy, centred on si.uv. It is cut along one edge into the n
         slices (n <= ``MAX_PROBES``) whose bounding boxes cover the least area (one for
-        an axis-aligned rectangle; the edge that does better), and one slice,
-        picked by ``u``, is shaded as its axis-aligned bounding box (the probe): as
-        hardware anisotropic filtering does, with the probes taken one per sample. The
-        expected probe is the parallelogram, not its bounding box, at one box's reads.
+        an axis-aligned rectangle; the edge that does better), and one slice (by the
+        sample's pixel offset where ``fr`` knows it, else by ``u``) is shaded as the box of
+        its own area and centre (the probe): as hardware anisotropic filtering does, with
+        the probes taken one per sample. The expected probe is the parallelogram with its
+        edges blurred over a fraction of a slice, not its bounding box, at one box's reads.
 
         Footprints covering fewer than ``POINT_TEXELS`` texels are shaded fibre level at
         a point drawn uniformly in the parallelogram (exactly the fibre-level BSDF at
@@ -200,6 +201,7 @@ class FootprintEstimator:
         # (p_use > 0) first: a zero footprint of constant si.duv_dx/dy is then a literal
         # False, and the symbolic if traces the fibre-level branch alone.
         use = (p_use > 0.0) & (u < p_use)
+        one_number = True  # u_probe alone picks the cell: along the slices, then across
         if u_probe is None:
             u_probe = dr.minimum(u * dr.select(p_use > 0.0, dr.rcp(p_use), 0.0), 0.99999994)
             u_probe_a = u_probe_b = u_probe
@@ -211,6 +213,7 @@ class FootprintEstimator:
                 known = (offset.x >= -0.5) & (offset.y >= -0.5)
                 u_probe_a = dr.select(known, dr.clip(offset.x + 0.5, 0.0, 0.99999994), u_probe)
                 u_probe_b = dr.select(known, dr.clip(offset.y + 0.5, 0.0, 0.99999994), u_probe)
+                one_number = False
         else:
             u_probe_a = u_probe_b = u_probe
 
@@ -236,7 +239,7 @@ class FootprintEstimator:
         # At least CELLS cells along each edge of two texels or more.
         n = dr.maximum(n, dr.select(dr.safe_sqrt(lx * lx + ly * ly) >= 2.0, float(self.CELLS), 1.0))
         v_probe = dr.select(along_a, u_probe_b, u_probe_a)
-        if u_probe_a is u_probe_b:  # one number: its remainder within the slice
+        if one_number:  # its remainder within the slice
             v_probe = u_probe * n - dr.floor(u_probe * n)
         m = dr.select(dr.safe_sqrt(sx * sx + sy * sy) >= 2.0, float(self.CELLS), 1.0)
         offset = (dr.floor(u_probe * n) + 0.5) * dr.rcp(n) - 0.5
@@ -282,7 +285,8 @@ class FootprintEstimator:
     # ------------------------------------------------------------------
     # The footprint's state: SAT means, residual texels, sampling mixture
     # ------------------------------------------------------------------
-    def state(self, si, fr, enabled, xi=None, xi_round=None, u_probe=None) -> FootprintState:
+    def state(self, si, fr, enabled, xi=None, xi_round=None, u_probe=None, fp: Footprint | None = None
+              ) -> FootprintState:
         """Everything of the footprint that does not depend on the outgoing direction,
         computed once per shading point and shared by eval, pdf and sample: the SAT
         means over the footprint, the control-variate residual texel, the viewer-side
@@ -291,15 +295,18 @@ class FootprintEstimator:
         ``xi`` (2D in [0,1)) places the residual texels, ``xi_round`` rounds the SATs'
         corners and ``u_probe`` picks the probe along the footprint (:meth:`footprint`);
         by default all three are a hash of (si.uv, si.p), so eval is a deterministic
-        function of (si, wo)."""
+        function of (si, wo). ``fp``: the footprint :meth:`footprint` gave for these
+        numbers, if the caller has it already."""
         bsdf = self.bsdf
         fd = bsdf.footprint_data
         sats = fd.scalar_sats
-        hashed = self.shading_hash(si)
-        if xi is None:
-            xi, xi_round = hashed[:2]
+        if xi is None or fp is None:
+            hashed = self.shading_hash(si)
+            if xi is None:
+                xi, xi_round = hashed[:2]
+            if fp is None:
+                fp = self.footprint(si, fr, hashed[2], u_probe)
         xi_round = mi.Point2f(0.5, 0.5) if xi_round is None else xi_round
-        fp = self.footprint(si, fr, hashed[2], u_probe)
         # The footprint shaded is its box with the corners rounded stochastically to
         # whole texels (expected extent: the footprint's), and every mean is the exact
         # mean over that rounded box: one SAT read per corner and channel instead of four
@@ -490,7 +497,6 @@ class FootprintEstimator:
                         # less (a 384^2 footprint's variance ratio 0.06 against 0.41)
                         # (bench/footprint_bias_scan.py, docs/decisions.md).
                         x0, y0, x1, y1 = st.fp.box
-                        bsdf = self.bsdf
                         whole_tiles = (x1 - x0 >= bsdf.tile_w) & (y1 - y0 >= bsdf.tile_h)
                         vbar_spec = [dr.select(whole_tiles, vb, w_bar) for vb in vbar_p]
                 else:
