@@ -114,9 +114,14 @@ def cmd_render(args) -> int:
     if out.suffix.lower() != ".exr":
         raise ClothError(f"--out must name an .exr file (a .png is written beside it), got {out}")
     variant = _setup(args.variant)
+    options = {name: value for name, value in (("fabric", args.fabric), ("view", args.view),
+                                                 ("light", args.light)) if value is not None}
+    if options and args.scene != "swatch":
+        raise ClothError(f"--{next(iter(options))} applies to the swatch scene only "
+                         f"(mscloth render swatch --fabric NAME), not to {args.scene!r}")
     if args.scene in SCENES:
-        w, h = args.res or (512, 288)
-        scene = load_dict(builtin_scene(args.scene, w, h))
+        w, h = args.res or ((480, 360) if args.scene == "swatch" else (512, 288))
+        scene = load_dict(builtin_scene(args.scene, w, h, **options))
     elif args.scene.lower().endswith(".xml"):
         scene = _load_scene_file(Path(args.scene), args.res)
     else:
@@ -172,16 +177,26 @@ def cmd_maps(args) -> int:
         ("yarn_width", args.yarn_width), ("gap_fraction", args.gap_fraction),
         ("yarn_height", args.yarn_height), ("fibre_twist_deg", args.twist),
         ("ply_count", args.plies), ("ply_twist_deg", args.ply_twist)) if value is not None}
-    pattern = named_pattern(args.pattern)
-    resolution = args.res or default_resolution(pattern)
     out = Path(args.out)
+    if args.fabric:
+        from .fabrics import fabric
+
+        preset = fabric(args.pattern)
+        if params:
+            raise ClothError(f"--{next(iter(params)).replace('_deg', '').replace('_', '-')} does not apply to "
+                             "a fabric preset, whose yarns are part of it")
+        resolution = args.res or preset.default_resolution()
+        pattern = None
+    else:
+        pattern = named_pattern(args.pattern)
+        resolution = args.res or default_resolution(pattern)
     if not args.force:
         existing = [p for p in (out / "maps.npz", out / "maps.json", out / "contact_sheet.png") if p.exists()]
         if existing:
             raise ClothError(f"{existing[0]} exists; pass --force to overwrite")
     started = time.perf_counter()
     print(f"mscloth maps: {args.pattern} at {resolution} texels along u ...", flush=True)
-    maps = generate_maps(pattern, resolution, **params)
+    maps = preset.maps(resolution) if args.fabric else generate_maps(pattern, resolution, **params)
     generated = time.perf_counter() - started
     maps.save(out, overwrite=args.force)
     previews = write_previews(maps, out, overwrite=args.force)
@@ -220,6 +235,18 @@ def cmd_compare(args) -> int:
 def _size(size: int) -> str:
     """A byte count in KiB below 1 MiB, in MiB above."""
     return f"{size / 2**10:.1f} KiB" if size < 2**20 else f"{size / 2**20:.1f} MiB"
+
+
+def cmd_fabrics(args) -> int:
+    from .fabrics import FABRICS
+
+    for f in FABRICS.values():
+        count = "wales x courses" if f.structure == "knit" else "ends x picks"
+        print(f"{f.name:16s} {f.pattern:12s} {f.ends_per_cm:g} x {f.picks_per_cm:g} {count}/cm, "
+              f"roughness {f.roughness:g}: {f.look}")
+    print("use: mscloth render swatch --fabric NAME, or <string name=\"fabric\" value=\"NAME\"/> "
+          "in a cloth bsdf (UVs in metres)")
+    return 0
 
 
 def cmd_cache(args) -> int:
@@ -283,8 +310,14 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
     demo.set_defaults(func=cmd_demo)
 
-    render = sub.add_parser("render", help="render a built-in scene (plane, sphere, drape, satin, satin-plane, denim) or a Mitsuba XML file")
-    render.add_argument("scene", help="plane, sphere, drape, satin, satin-plane, denim, or a .xml file")
+    render = sub.add_parser("render", help="render a built-in scene (swatch, plane, sphere, drape, satin, satin-plane, denim) or a Mitsuba XML file")
+    render.add_argument("scene", help="swatch, plane, sphere, drape, satin, satin-plane, denim, or a .xml file")
+    render.add_argument("--fabric", default=None, help="swatch: the fabric preset (default silk-charmeuse; "
+                                                       "see mscloth fabrics)")
+    render.add_argument("--view", default=None, choices=("close", "arm", "room"),
+                        help="swatch: close-up (yarns, parallax), arm's length, or across a room (default arm)")
+    render.add_argument("--light", default=None, choices=("studio", "sunsky"),
+                        help="swatch: key, fill and rim area lights, or Mitsuba's sunsky (default studio)")
     render.add_argument("--spp", type=_positive_int(1, 65536), default=64, help="samples per pixel (default 64)")
     render.add_argument("--res", type=_resolution_arg, default=None, help="WIDTHxHEIGHT (default: the scene's)")
     render.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
@@ -311,6 +344,8 @@ def build_parser() -> argparse.ArgumentParser:
     maps.add_argument("--twist", type=float, default=None, help="fibre twist angle in degrees (S > 0, Z < 0)")
     maps.add_argument("--plies", type=int, default=None, help="plies per yarn (1-8)")
     maps.add_argument("--ply-twist", type=float, default=None, help="ply twist angle in degrees, (0, 90)")
+    maps.add_argument("--fabric", action="store_true",
+                      help="PATTERN names a fabric preset (mscloth fabrics): its maps at its true thread count")
     maps.set_defaults(func=cmd_maps)
 
     compare = sub.add_parser("compare", help="multi-scale vs brute-force cloth: equal-error speed-up near, middle, far")
@@ -330,6 +365,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="with --clear: only entries unused for DAYS days (a load marks an entry used)")
     cache.add_argument("--dry-run", action="store_true", help="with --clear: list what would be removed")
     cache.set_defaults(func=cmd_cache)
+
+    fabrics = sub.add_parser("fabrics", help="list the fabric presets (cloth's fabric parameter)")
+    fabrics.set_defaults(func=cmd_fabrics)
     return parser
 
 

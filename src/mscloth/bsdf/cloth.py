@@ -12,7 +12,6 @@ import mitsuba as mi
 import numpy as np
 
 from ..jit_arrays import flat_array, gather_block
-from ..maps.builtin import resolve_pattern
 from ..scattering import sheen, spongecake
 from .footprint_data import FootprintData
 from .footprint_estimator import FootprintEstimator, edges_in_texels
@@ -20,7 +19,7 @@ from .lanes import logical_not
 from .lobe_calibration import calibrate
 from .lobes import (DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN,
                     SPECULAR_REFLECTION, SPECULAR_TRANSMISSION, with_yarn_albedo)
-from .parameters import FLOAT_PARAMETERS, SPECTRUM_PARAMETERS, read_parameters
+from .parameters import FLOAT_PARAMETERS, SPECTRUM_PARAMETERS, cloth_maps, read_parameters, uv_scales
 
 
 DOCSTRING = r"""
@@ -219,15 +218,13 @@ def make_cloth_class():
             # constructed (and registered for virtual calls) by an __init__ that then raises
             # leaves a dangling registry entry, and a later render crashes on it.
             p = read_parameters(props)
-            maps = resolve_pattern(p.pattern, p.resolution)
+            maps = cloth_maps(p)
             mi.BSDF.__init__(self, props)
-            self.pattern = p.pattern
+            self.pattern = p.fabric if not p.pattern_given else p.pattern
             self.maps = maps
             self._pinned = []
-            self.uv_scale = self._parameter(p.uv_scale)
-            # Square UV units see the tile at its physical aspect unless told otherwise.
-            width_mm, height_mm = self.maps.meta.get("tile_size_mm", (1.0, 1.0))
-            uv_scale_v = p.uv_scale_v or p.uv_scale * width_mm / height_mm
+            uv_scale, uv_scale_v = uv_scales(p, maps)
+            self.uv_scale = self._parameter(uv_scale)
             self.uv_scale_v = self._parameter(uv_scale_v)
             self.roughness = self._parameter(p.roughness)
             self.thickness = self._parameter(p.thickness)
@@ -282,7 +279,7 @@ def make_cloth_class():
             if dr.is_jit_v(mi.Float):
                 texel_uv = None
                 if self.multiscale:
-                    texel_uv = (1.0 / (p.uv_scale * self.tile_w), 1.0 / (uv_scale_v * self.tile_h))
+                    texel_uv = (1.0 / (uv_scale * self.tile_w), 1.0 / (uv_scale_v * self.tile_h))
                 with dr.suspend_grad():
                     self.lobe_calibration, self.footprint_calibration = calibrate(self, self.point_proxies, texel_uv)
 
@@ -724,6 +721,8 @@ def make_cloth_class():
 
         def traverse(self, callback):
             for name in FLOAT_PARAMETERS:
+                if name == "uv_unit":  # read once into uv_scale and uv_scale_v
+                    continue
                 callback.put(name, getattr(self, name), mi.ParamFlags.NonDifferentiable
                              if name.startswith("uv_scale") else mi.ParamFlags.Differentiable)
             for name in SPECTRUM_PARAMETERS:

@@ -19,6 +19,8 @@ FLOAT_PARAMETERS = {
     # name: (default, low, high, low_inclusive, meaning)
     "uv_scale": (1.0, 0.0, math.inf, False, "pattern tiles per UV unit"),
     "uv_scale_v": (0.0, 0.0, math.inf, True, "pattern tiles per UV unit along v (0: from uv_scale and the tile's aspect)"),
+    "uv_unit": (0.0, 0.0, 1e6, True, "length of one UV unit in metres, for UVs in physical units (0: uv_scale "
+                                     "counts tiles per UV unit; 1 with a fabric)"),
     "roughness": (0.3, 0.0, 1.0, False, "fibre SGGX roughness alpha (alpha^2 along the fibre)"),
     "thickness": (2.0, 0.0, 1e3, False, "optical thickness T of the yarn layer"),
     "sheen_roughness": (0.5, 0.0, 1.0, False, "roughness of the fuzz fibres"),
@@ -62,6 +64,7 @@ class ClothParameters:
     resolution: int | None
     uv_scale: float
     uv_scale_v: float
+    uv_unit: float
     roughness: float
     thickness: float
     sheen_roughness: float
@@ -77,12 +80,14 @@ class ClothParameters:
     direction_rank: int = 0
     max_table_mib: int = 256
     footprint_slices: int = 1
+    fabric: str | None = None       # the preset the defaults came from
+    pattern_given: bool = True      # False: the maps are the fabric's own
 
 
-def _read_float(props, name):
-    default, low, high, low_inclusive, meaning = FLOAT_PARAMETERS[name]
+def _read_float(props, name, default=None):
+    _, low, high, low_inclusive, meaning = FLOAT_PARAMETERS[name]
     if name not in props:
-        return default
+        return FLOAT_PARAMETERS[name][0] if default is None else default
     value = props.get(name)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ParameterError(f"cloth: parameter '{name}' ({meaning}) must be a number, got {value!r}")
@@ -126,9 +131,24 @@ def _texture_min(texture) -> float:
     return 0.0  # textures without data (procedural) are checked against their max only
 
 
+def _preset_texture(value):
+    """A preset's spectrum value (a float or an ``rgb`` dictionary) as a texture."""
+    if isinstance(value, dict):
+        return mi.load_dict(value)
+    return mi.load_dict({"type": "uniform", "value": float(value)})
+
+
 def read_parameters(props) -> ClothParameters:
-    """Read every ``cloth`` parameter from Mitsuba Properties, validating each."""
-    pattern = props.get("pattern", "plain")
+    """Read every ``cloth`` parameter from Mitsuba Properties, validating each. A ``fabric``
+    supplies the defaults of the others (and the maps when no ``pattern`` is given); its
+    UVs are read in metres unless ``uv_unit`` or ``uv_scale`` says otherwise."""
+    preset = None
+    if "fabric" in props:
+        from ..fabrics import fabric
+
+        preset = fabric(props.get("fabric"))
+    preset_values = preset.bsdf_parameters() if preset else {}
+    pattern = props.get("pattern", preset.pattern if preset else "plain")
     if not isinstance(pattern, str) or not pattern:
         raise ParameterError(f"cloth: parameter 'pattern' must be a pattern name or a maps directory, got {pattern!r}")
     resolution = props.get("resolution", 0)
@@ -138,13 +158,21 @@ def read_parameters(props) -> ClothParameters:
     if 0 < resolution < 8:
         raise ParameterError(f"cloth: parameter 'resolution' must be in [8, 8192] (0: default), got {resolution}")
 
-    floats = {name: _read_float(props, name) for name in FLOAT_PARAMETERS}
+    floats = {name: _read_float(props, name, preset_values.get(name)) for name in FLOAT_PARAMETERS}
+    if floats["uv_unit"] > 0.0 and "uv_unit" in props and ("uv_scale" in props or "uv_scale_v" in props):
+        raise ParameterError("cloth: give uv_unit (the UVs' length unit, for physical UVs) or "
+                             "uv_scale / uv_scale_v (tiles per UV unit), not both")
+    if preset and not any(name in props for name in ("uv_unit", "uv_scale", "uv_scale_v")):
+        floats["uv_unit"] = 1.0  # a fabric's mesh has UVs in metres unless told otherwise
 
     textures = {}
     bounds = {}
     for name, (default, meaning) in SPECTRUM_PARAMETERS.items():
         try:
-            texture = props.get_texture(name, default)
+            if name not in props and name in preset_values:
+                texture = _preset_texture(preset_values[name])
+            else:
+                texture = props.get_texture(name, default)
         except RuntimeError as error:  # e.g. Mitsuba refusing an RGB reflectance > 1
             reason = str(error).strip().splitlines()[-1]
             raise ParameterError(f"cloth: parameter '{name}' ({meaning}) must lie in [0, 1] "
@@ -193,4 +221,26 @@ def read_parameters(props) -> ClothParameters:
         raise ParameterError(f"cloth: parameter 'direction_rank' must be at most direction_bins^2 = {bins} "
                              f"(0: the full directional SAT), got {switches['direction_rank']}")
     return ClothParameters(pattern=pattern, resolution=resolution or None, textures=textures,
-                           **floats, **switches)
+                           fabric=preset.name if preset else None,
+                           pattern_given=preset is None or "pattern" in props, **floats, **switches)
+
+
+def cloth_maps(p: ClothParameters):
+    """The maps a ``cloth`` BSDF shades: its fabric's own, or its ``pattern``'s."""
+    if not p.pattern_given:
+        from ..fabrics import fabric
+
+        return fabric(p.fabric).maps(p.resolution)
+    from ..maps.builtin import resolve_pattern
+
+    return resolve_pattern(p.pattern, p.resolution)
+
+
+def uv_scales(p: ClothParameters, maps) -> tuple[float, float]:
+    """Pattern tiles per UV unit along u and v. With ``uv_unit`` (metres per UV unit) the
+    tile's physical size sets them; otherwise ``uv_scale`` does, and ``uv_scale_v`` or,
+    when 0, the tile's aspect (square UV units see the tile at its physical aspect)."""
+    width_mm, height_mm = maps.meta.get("tile_size_mm", (1.0, 1.0))
+    if p.uv_unit > 0.0:
+        return p.uv_unit * 1000.0 / width_mm, p.uv_unit * 1000.0 / height_mm
+    return p.uv_scale, p.uv_scale_v or p.uv_scale * width_mm / height_mm

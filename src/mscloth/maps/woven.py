@@ -112,6 +112,34 @@ def _crossings(centres: np.ndarray, period: float, pos: np.ndarray):
     return k0, k1, weight, dweight
 
 
+def float_heights(over: np.ndarray, arch: float) -> np.ndarray:
+    """Centreline height / A at each crossing of the yarns along axis 0 of ``over`` (+1
+    where the yarn is over, -1 under): +-1, except that a run of k > 1 crossings on one side
+    rises towards its middle, the m-th (of k) to 1 - arch (1 - 2 sin(pi (m + 1) / (k + 1)))
+    in magnitude: a half-sine arch from the crossing before the run to the one after."""
+    over = np.asarray(over, dtype=float)
+    out = over.copy()
+    if arch <= 0.0:
+        return out
+    n = over.shape[0]
+    for col in range(over.shape[1]):
+        c = over[:, col]
+        if np.all(c == c[0]):
+            continue  # never interlaced: flat
+        start = int(np.argmax(c != np.roll(c, 1)))  # a run starts here
+        m = 0
+        while m < n:
+            k = 1
+            while k < n and c[(start + m + k) % n] == c[(start + m) % n]:
+                k += 1
+            if k > 1:
+                for q in range(k):
+                    a = math.sin(math.pi * (q + 1) / (k + 1))
+                    out[(start + m + q) % n, col] = c[(start + m) % n] * ((1.0 - arch) + arch * (2.0 * a - 1.0))
+            m += k
+    return out
+
+
 def _ply_tangent(axis: np.ndarray, n_y: np.ndarray, along_mm: np.ndarray, across_mm: np.ndarray,
                  side: float, diameter: np.ndarray, mean_spacing: float, ply_count: int,
                  beta: float, psi: float) -> tuple[np.ndarray, np.ndarray]:
@@ -140,7 +168,7 @@ def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
                yarn_width: float | None = None, gap_fraction: float | None = None,
                yarn_height: float = 0.35, profile_exponent: float = 2.0,
                fibre_twist_deg: float = 30.0, ply_count: int = 1, ply_twist_deg: float = 30.0,
-               warp_colors: Any = None, weft_colors: Any = None) -> ClothMaps:
+               warp_colors: Any = None, weft_colors: Any = None, float_arch: float = 0.0) -> ClothMaps:
     """Build the maps of one seamless tile of a woven fabric (geometry: module docstring).
 
     Args:
@@ -162,6 +190,11 @@ def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
         ply_twist_deg: angle of the plies to the yarn axis, in (0, 90) when ply_count > 1.
         warp_colors, weft_colors: *linear* RGB in [0, 1], one triple for all or one per thread;
             default: the draft's sRGB colours, converted to linear.
+        float_arch: in [0, 1]; 0 keeps a float (a run of crossings over the other yarn) flat
+            at +A, 1 arches it: its crossings rise along a half sine from the crossing
+            before the float to the one after (:func:`float_heights`), so its fibres tilt
+            through every angle up to the yarn's inclination, as the spines of real floats
+            do (Irawan & Marschner 2012). Single crossings (plain weave) are unchanged.
 
     Yarn ids: warp end j -> j, weft pick i -> n_warp + i, gap -> -1. Heights are in units of
     the tile width; ``meta['tile_size_mm']`` is the tile's (width, height) in millimetres.
@@ -197,6 +230,9 @@ def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
     x = (np.arange(W) + 0.5) / W * width_mm      # texel centres, mm
     y = (np.arange(H) + 0.5) / H * height_mm
     up = np.where(dd, 1.0, -1.0)                  # +1 where the warp is over
+    arch = real_in("float_arch", float_arch, 0.0, 1.0, False, False)
+    warp_level = float_heights(up, arch)          # (picks, ends): warp centreline / A
+    weft_level = float_heights(-up.T, arch).T     # weft centreline / A
     amp_warp = 0.5 * yh * warp_width              # centreline amplitude A per thread, mm
     amp_weft = 0.5 * yh * weft_width
 
@@ -208,8 +244,8 @@ def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
     s_warp = dx / (0.5 * warp_width[j])
     i0, i1, wv, dwv = _crossings(weft_centre, height_mm, y)              # (H,)
     a_w = amp_warp[j][None, :]
-    h0 = a_w * up[i0[:, None], j[None, :]]
-    h1 = a_w * up[i1[:, None], j[None, :]]
+    h0 = a_w * warp_level[i0[:, None], j[None, :]]
+    h1 = a_w * warp_level[i1[:, None], j[None, :]]
     centre_warp = h0 + (h1 - h0) * wv[:, None]
     slope_warp = (h1 - h0) * dwv[:, None]
     surf_warp = centre_warp + bulge(amp_warp[j], s_warp)[None, :]
@@ -219,8 +255,8 @@ def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
     s_weft = dy / (0.5 * weft_width[i])
     j0, j1, wu, dwu = _crossings(warp_centre, width_mm, x)               # (W,)
     a_f = amp_weft[i][:, None]
-    g0 = -a_f * up[i[:, None], j0[None, :]]
-    g1 = -a_f * up[i[:, None], j1[None, :]]
+    g0 = a_f * weft_level[i[:, None], j0[None, :]]
+    g1 = a_f * weft_level[i[:, None], j1[None, :]]
     centre_weft = g0 + (g1 - g0) * wu[None, :]
     slope_weft = (g1 - g0) * dwu[None, :]
     surf_weft = centre_weft + bulge(amp_weft[i], s_weft)[:, None]
@@ -290,6 +326,7 @@ def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
         "twist": "S" if twist > 0 else ("Z" if twist < 0 else "none"),
         "ply_count": int(ply_count),
         "ply_twist_deg": float(ply_twist_deg),
+        "float_arch": arch,
         "warp_colors": np.asarray(warp_rgb).tolist(),
         "weft_colors": np.asarray(weft_rgb).tolist(),
     }

@@ -248,7 +248,9 @@ def denim_scene(width: int = 512, height: int = 288, maps_dir: str | os.PathLike
     return scene
 
 
-SCENES = {"plane": plane_scene, "sphere": sphere_scene, "drape": drape_scene,
+from .swatch import swatch_scene  # noqa: E402  (it uses T from this module)
+
+SCENES = {"swatch": swatch_scene, "plane": plane_scene, "sphere": sphere_scene, "drape": drape_scene,
           "satin": satin_scene, "satin-plane": satin_plane_scene, "denim": denim_scene}
 
 
@@ -265,8 +267,9 @@ def set_cloth_parameters(node, **params) -> int:
     return count
 
 
-def builtin_scene(name: str, width: int = 512, height: int = 288) -> dict:
-    """The scene dictionary of a built-in scene (needs ``mscloth.register()`` to load)."""
+def builtin_scene(name: str, width: int = 512, height: int = 288, **options) -> dict:
+    """The scene dictionary of a built-in scene (needs ``mscloth.register()`` to load);
+    ``options`` go to the scene's function (the swatch's fabric, view and light)."""
     if name not in SCENES:
         raise ClothError(f"unknown scene {name!r}: expected one of {', '.join(SCENES)} or a .xml file")
-    return SCENES[name](width, height)
+    return SCENES[name](width, height, **options)

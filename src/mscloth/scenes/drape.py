@@ -6,11 +6,13 @@ import numpy as np
 
 
 def drape_mesh(name: str = "drape", radius: float = 0.5, size: float = 1.6, folds: int = 7,
-               resolution: int = 128, centre=(0.0, 0.0, 0.0)) -> "mi.Mesh":
-    """Triangle mesh (with UVs in [0, 1]^2) of a ``size`` x ``size`` sheet draped over a
+               resolution: int = 128, centre=(0.0, 0.0, 0.0), uv_size: float = 1.0,
+               fold_depth: float = 0.12) -> "mi.Mesh":
+    """Triangle mesh (with UVs in [0, uv_size]^2: ``uv_size = size`` gives UVs in the
+    sheet's rest lengths, as a cloth simulator's are) of a ``size`` x ``size`` sheet draped over a
     sphere of ``radius`` resting on the ground y = 0 at ``centre``: the part within 80% of the
     radius follows the sphere's cap, the rest falls towards the ground in ``folds`` radial
-    folds. Positions are a smooth function of the sheet coordinates, so the mesh is valid
+    folds of relative depth ``fold_depth``. Positions are a smooth function of the sheet coordinates, so the mesh is valid
     (no self-intersections for the defaults)."""
     n = resolution
     s, t = np.meshgrid(np.linspace(-1.0, 1.0, n), np.linspace(-1.0, 1.0, n), indexing="xy")
@@ -21,7 +23,7 @@ def drape_mesh(name: str = "drape", radius: float = 0.5, size: float = 1.6, fold
     top = radius + np.sqrt(np.maximum(radius * radius - cap * cap, 0.0)) + 0.01 * radius
     beyond = np.maximum(r - r0, 0.0)
     # Beyond the cap the sheet falls steeply, pulled in and rippled into folds.
-    rho = cap + beyond * (0.45 + 0.12 * np.sin(folds * theta)) + 0.02 * radius
+    rho = cap + beyond * (0.45 + fold_depth * np.sin(folds * theta)) + 0.02 * radius
     height = top - beyond * 1.1
     ground = 0.005
     height = np.maximum(height, ground + 0.02 * beyond)
@@ -29,7 +31,7 @@ def drape_mesh(name: str = "drape", radius: float = 0.5, size: float = 1.6, fold
     z = centre[2] + rho * np.sin(theta)
     y = centre[1] + height
     positions = np.stack([x, y, z], axis=-1).reshape(-1, 3).astype(np.float32)
-    uvs = np.stack([(s + 1.0) * 0.5, (t + 1.0) * 0.5], axis=-1).reshape(-1, 2).astype(np.float32)
+    uvs = uv_size * np.stack([(s + 1.0) * 0.5, (t + 1.0) * 0.5], axis=-1).reshape(-1, 2).astype(np.float32)
     i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="xy")
     v00 = (j * n + i).ravel()
     v10, v01, v11 = v00 + 1, v00 + n, v00 + n + 1

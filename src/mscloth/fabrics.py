@@ -1,0 +1,358 @@
+"""Named fabrics: complete, physically scaled parameter sets for the ``cloth`` BSDF.
+
+A :class:`Fabric` states what a textile has (weave or knit, ends and picks per cm, yarn
+diameter, ply and twist, the yarn's inclination, fibre roughness, colours, sheen) and turns
+it into cloth maps at its true thread count (``meta['tile_size_mm']``) and into the BSDF's
+parameters. The ``cloth`` plugin's ``fabric`` parameter names one; its other parameters
+still override the preset's, and its UVs are then read in metres (``uv_unit``).
+
+Where the numbers come from:
+
+* Thread counts, yarn sizes and the weave of each fabric: textile references (Kadolph,
+  *Textiles*, 11th ed.; Hollen & Saddler; mill specifications quoted in the ``source`` of
+  each preset), rounded.
+* Fibre twist (``fibre_twist_deg``) and the yarns' inclination (``inclination_deg``, Irawan's
+  u_max): the cloth presets of Irawan & Marschner 2012, "Specular reflection from woven
+  cloth" (ACM TOG 31(1)), as published under Apache-2.0 with LuxCoreRender for denim, silk
+  charmeuse, silk shantung, cotton twill, wool gabardine and polyester lining. The
+  inclination sets the maps' ``yarn_height`` (:meth:`Fabric.yarn_height`).
+* Roughness, albedos and sheen: chosen within the model's form so each preset reads as its
+  fabric under the look-development scenes (``docs/decisions.md``, "Fabric presets").
+
+Colours are sRGB in [0, 1] as a colour picker gives them; the maps store them linear and
+the BSDF multiplies every lobe's albedo by them.
+"""
+from __future__ import annotations
+
+import difflib
+import functools
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import ParameterError
+
+#: Texels along one warp end (knits: one wale) in a preset's maps when the caller gives no
+#: resolution: enough for the yarn's cross-section and its twisted fibres.
+TEXELS_PER_THREAD = 16
+#: Texels along u of a preset's tile are kept within these bounds.
+MIN_TILE_TEXELS, MAX_TILE_TEXELS = 32, 512
+
+
+@dataclass(frozen=True)
+class Fabric:
+    """One named fabric (see the module docstring for the sources)."""
+
+    name: str
+    title: str
+    structure: str                    # "woven" or "knit"
+    pattern: str                      # a named weave (``satin-8-3``) or knit (``rib-2-2``)
+    ends_per_cm: float                # warp ends per cm (knits: wales per cm)
+    picks_per_cm: float               # weft picks per cm (knits: courses per cm)
+    yarn_diameter_mm: tuple           # (warp, weft) diameters in mm (knits: one yarn)
+    fibre_twist_deg: float            # fibre angle to the yarn (ply) axis; > 0 S, < 0 Z
+    inclination_deg: float            # the face yarn's largest angle to the cloth's plane
+    warp_color: tuple                 # sRGB (knits: the yarn's colour)
+    weft_color: tuple                 # sRGB
+    roughness: float
+    thickness: float
+    specular_albedo: float
+    specular_transmittance: float
+    diffuse_albedo: float
+    diffuse_transmittance: float
+    sheen_color: tuple                # sRGB
+    sheen_roughness: float
+    sheen_thickness: float
+    ply: int = 1                      # plies per yarn
+    ply_twist_deg: float = 30.0       # ply angle to the yarn axis (ply > 1)
+    slub: float = 0.0                 # relative spread of yarn diameters (slubby yarns)
+    repeat: int = 1                   # the weave's repeat tiled this often each way (slubs)
+    profile_exponent: float = 2.0     # cross-section: 2 round, larger flatter (filament)
+    float_arch: float = 1.0           # floats arch over their crossings (woven_maps)
+    texels_per_thread: int = TEXELS_PER_THREAD
+    source: str = ""
+    look: str = ""                    # what makes it read as this fabric
+    gap_fraction: float = field(init=False, default=0.0)
+
+    def __post_init__(self):
+        if self.structure not in ("woven", "knit"):
+            raise ParameterError(f"fabric {self.name!r}: structure must be 'woven' or 'knit'")
+        object.__setattr__(self, "gap_fraction", self._gap_fraction())
+
+    # ------------------------------------------------------------------ geometry
+    @property
+    def warp_spacing_mm(self) -> float:
+        return 10.0 / self.ends_per_cm
+
+    @property
+    def weft_spacing_mm(self) -> float:
+        return 10.0 / self.picks_per_cm
+
+    @property
+    def cover(self) -> tuple[float, float]:
+        """(warp, weft) yarn width / thread spacing of a woven fabric's mean yarn, at most
+        1: a yarn flattens against its neighbours rather than overlapping them."""
+        d_warp, d_weft = self._diameters()
+        return (min(1.0, d_warp / self.warp_spacing_mm), min(1.0, d_weft / self.weft_spacing_mm))
+
+    def _diameters(self) -> tuple[float, float]:
+        d = tuple(self.yarn_diameter_mm)
+        return (d[0], d[-1])
+
+    def _gap_fraction(self) -> float:
+        """Open area of the cloth seen along the normal: the mean open width of the warp
+        ends times that of the weft picks (exact for uniform spacing; slubby threads each
+        count with their own diameter). Knits: 0, their holes depend on the loop shape."""
+        if self.structure == "knit":
+            return 0.0
+        draft = _woven_draft(self)
+        open_warp = np.mean(1.0 - np.minimum(1.0, draft.warp_thickness / draft.warp_spacing))
+        open_weft = np.mean(1.0 - np.minimum(1.0, draft.weft_thickness / draft.weft_spacing))
+        return float(open_warp * open_weft)
+
+    def yarn_height(self) -> float:
+        """The woven maps' ``yarn_height`` (peak-to-peak undulation / yarn width) giving
+        the face yarn this inclination: its centreline is a cosine between +-A over one
+        thread spacing s, steepest at tan(u_max) = pi A / s, so 2A / w = 2 s tan(u_max) /
+        (pi w)."""
+        s, w = self.warp_spacing_mm, self.cover[0] * self.warp_spacing_mm
+        return float(min(2.0, 2.0 * s * math.tan(math.radians(self.inclination_deg)) / (math.pi * w)))
+
+    def tile_size_mm(self) -> tuple[float, float]:
+        """(width, height) of one tile of this fabric's maps, in mm."""
+        maps = self.maps(MIN_TILE_TEXELS)
+        return tuple(maps.meta["tile_size_mm"])
+
+    # ------------------------------------------------------------------ maps
+    def default_resolution(self) -> int:
+        """Texels along u: ``texels_per_thread`` per warp end (twice that per wale: a knit's
+        loops need more), within [MIN_TILE_TEXELS, MAX_TILE_TEXELS]."""
+        per = self.texels_per_thread * (2 if self.structure == "knit" else 1)
+        return int(min(MAX_TILE_TEXELS, max(MIN_TILE_TEXELS, per * _pattern_columns(self))))
+
+    def maps(self, resolution: int | None = None):
+        """Cloth maps of one tile at the fabric's true thread count (cached)."""
+        return _fabric_maps(self.name, resolution or self.default_resolution())
+
+    # ------------------------------------------------------------------ BSDF
+    def bsdf_parameters(self) -> dict:
+        """The ``cloth`` parameters this preset sets (floats, and sRGB colours as Mitsuba
+        ``rgb`` dictionaries); the maps carry the yarn colours."""
+        rgb = {"type": "rgb", "value": [float(c) for c in _srgb_to_linear(self.sheen_color)]}
+        return {"roughness": self.roughness, "thickness": self.thickness,
+                "specular_albedo": self.specular_albedo,
+                "specular_transmittance": self.specular_transmittance,
+                "diffuse_albedo": self.diffuse_albedo,
+                "diffuse_transmittance": self.diffuse_transmittance,
+                "sheen_color": rgb, "sheen_roughness": self.sheen_roughness,
+                "sheen_thickness": self.sheen_thickness}
+
+
+def _srgb_to_linear(c) -> np.ndarray:
+    c = np.asarray(c, dtype=float)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def _pattern_columns(fabric: Fabric) -> int:
+    if fabric.structure == "knit":
+        return _knit_pattern(fabric).n_wales
+    from .patterns.named import named_pattern
+
+    return named_pattern(fabric.pattern).n_warp * fabric.repeat
+
+
+def _knit_pattern(fabric: Fabric):
+    """The fabric's KnitPattern in its colour, repeated until its tile is about as tall as
+    it is wide (a knit's repeat is often one course tall), at least 2 x 2 stitches."""
+    from .patterns.knit import KnitPattern
+    from .patterns.named import named_pattern
+
+    base = named_pattern(fabric.pattern)
+    width = base.n_wales / fabric.ends_per_cm
+    height = base.n_courses / fabric.picks_per_cm
+    courses = max(2 // base.n_courses, round(width / height), 1)
+    wales = max(2 // base.n_wales, round(height * courses / width), 1)
+    tiled = base.tiled(courses, wales)
+    return KnitPattern(tiled.stitches, course_colors=fabric.warp_color, name=fabric.name)
+
+
+def _woven_draft(fabric: Fabric):
+    """The fabric's Draft: its weave tiled ``repeat`` times, per-thread spacing and
+    diameters (slubby yarns vary from thread to thread, from a fixed seed) and colours."""
+    from .patterns.draft import Draft
+    from .patterns.named import named_pattern
+
+    base = named_pattern(fabric.pattern)
+    drawdown = np.tile(base.drawdown, (fabric.repeat, fabric.repeat))
+    n_weft, n_warp = drawdown.shape
+    rng = np.random.default_rng(sum(map(ord, fabric.name)))  # stable per fabric
+    d_warp, d_weft = fabric._diameters()
+
+    def diameters(d, count):
+        return d * (1.0 + fabric.slub * rng.uniform(-1.0, 1.0, count)) if fabric.slub else np.full(count, d)
+
+    return Draft(drawdown, warp_colors=fabric.warp_color, weft_colors=fabric.weft_color,
+                 warp_spacing=fabric.warp_spacing_mm, weft_spacing=fabric.weft_spacing_mm,
+                 warp_thickness=diameters(d_warp, n_warp), weft_thickness=diameters(d_weft, n_weft),
+                 name=fabric.name)
+
+
+@functools.lru_cache(maxsize=8)
+def _fabric_maps(name: str, resolution: int):
+    fabric = FABRICS[name]
+    if fabric.structure == "woven":
+        from .maps.woven import woven_maps
+
+        maps = woven_maps(_woven_draft(fabric), resolution, yarn_height=fabric.yarn_height(),
+                          profile_exponent=fabric.profile_exponent,
+                          fibre_twist_deg=fabric.fibre_twist_deg, ply_count=fabric.ply,
+                          ply_twist_deg=fabric.ply_twist_deg, float_arch=fabric.float_arch)
+    else:
+        from .maps.knit import knit_maps
+
+        pattern = _knit_pattern(fabric)
+        wale_mm = 10.0 / fabric.ends_per_cm
+        maps = knit_maps(pattern, resolution, yarn_width=min(1.0, fabric._diameters()[0] / wale_mm),
+                         loop_aspect=fabric.ends_per_cm / fabric.picks_per_cm,
+                         fibre_twist_deg=fabric.fibre_twist_deg, wale_spacing_mm=wale_mm)
+    maps.meta["fabric"] = name
+    return maps
+
+
+# ---------------------------------------------------------------------------- the presets
+_SILK_LOOK = "a continuous lustre band along the long warp floats, moving with the light"
+
+FABRICS: dict[str, Fabric] = {f.name: f for f in (
+    Fabric(
+        name="silk-charmeuse", title="Silk charmeuse", structure="woven", pattern="satin-5-2",
+        ends_per_cm=120, picks_per_cm=45, yarn_diameter_mm=(0.09, 0.12),
+        fibre_twist_deg=0.0, inclination_deg=40.0, profile_exponent=4.0,
+        warp_color=(0.80, 0.70, 0.52), weft_color=(0.80, 0.70, 0.52),
+        roughness=0.1, thickness=4.0, specular_albedo=0.85, specular_transmittance=0.05,
+        diffuse_albedo=0.1, diffuse_transmittance=0.03,
+        sheen_color=(0.9, 0.85, 0.75), sheen_roughness=0.5, sheen_thickness=0.05,
+        source="5-end warp-faced satin of untwisted filament silk, ~300 x 115 threads/inch "
+               "(16-19 momme charmeuse); twist 0 and warp/weft inclination 40/60 degrees from "
+               "Irawan & Marschner 2012's silk charmeuse",
+        look=_SILK_LOOK),
+    Fabric(
+        name="polyester-satin", title="Polyester satin", structure="woven", pattern="satin-8-3",
+        ends_per_cm=90, picks_per_cm=38, yarn_diameter_mm=(0.12, 0.15),
+        fibre_twist_deg=0.0, inclination_deg=22.0, profile_exponent=4.0,
+        warp_color=(0.55, 0.05, 0.08), weft_color=(0.55, 0.05, 0.08),
+        roughness=0.12, thickness=4.0, specular_albedo=0.85, specular_transmittance=0.05,
+        diffuse_albedo=0.1, diffuse_transmittance=0.03,
+        sheen_color=(0.9, 0.9, 0.9), sheen_roughness=0.5, sheen_thickness=0.05,
+        source="8-end warp-faced satin of flat filament polyester (75-100 denier), ~230 x 95 "
+               "threads/inch; twist 0 and inclination 22 degrees from Irawan & Marschner "
+               "2012's polyester",
+        look="a brighter, more uniform, slightly plastic lustre band than silk"),
+    Fabric(
+        name="cotton-poplin", title="Cotton poplin", structure="woven", pattern="plain",
+        ends_per_cm=55, picks_per_cm=28, yarn_diameter_mm=(0.19, 0.30),
+        fibre_twist_deg=-28.0, inclination_deg=30.0, ply=1,
+        warp_color=(0.62, 0.74, 0.86), weft_color=(0.62, 0.74, 0.86),
+        roughness=0.45, thickness=2.0, specular_albedo=0.2, specular_transmittance=0.1,
+        diffuse_albedo=0.65, diffuse_transmittance=0.05,
+        sheen_color=(0.9, 0.9, 0.9), sheen_roughness=0.6, sheen_thickness=0.15,
+        source="dense plain weave of combed cotton, ~140 x 70 threads/inch (warp about twice "
+               "the weft count: the fine weft-wise rib), Z-spun (twist -30 degrees as Irawan "
+               "& Marschner 2012's cotton twill)",
+        look="matte and even, a faint fine rib across the cloth, soft highlights on folds"),
+    Fabric(
+        name="denim", title="Denim", structure="woven", pattern="twill-3-1-Z",
+        ends_per_cm=28, picks_per_cm=18, yarn_diameter_mm=(0.40, 0.45),
+        fibre_twist_deg=-30.0, inclination_deg=12.0,
+        warp_color=(0.10, 0.16, 0.36), weft_color=(0.88, 0.84, 0.74),
+        roughness=0.4, thickness=2.0, specular_albedo=0.3, specular_transmittance=0.05,
+        diffuse_albedo=0.6, diffuse_transmittance=0.02,
+        sheen_color=(0.8, 0.82, 0.9), sheen_roughness=0.6, sheen_thickness=0.25,
+        source="3/1 right-hand (Z) warp-faced twill, indigo warp and ecru weft, ~70 x 46 "
+               "threads/inch (12-14 oz); twist -30 degrees and warp/weft inclination 12/38 "
+               "degrees from Irawan & Marschner 2012's denim",
+        look="the diagonal twill lines, indigo face with flecks of the white weft"),
+    Fabric(
+        name="wool-gabardine", title="Wool gabardine", structure="woven", pattern="twill-2-2",
+        ends_per_cm=50, picks_per_cm=26, yarn_diameter_mm=(0.22, 0.30),
+        fibre_twist_deg=30.0, inclination_deg=30.0, ply=2, ply_twist_deg=25.0,
+        warp_color=(0.55, 0.45, 0.32), weft_color=(0.55, 0.45, 0.32),
+        roughness=0.35, thickness=2.5, specular_albedo=0.3, specular_transmittance=0.05,
+        diffuse_albedo=0.55, diffuse_transmittance=0.02,
+        sheen_color=(0.8, 0.72, 0.6), sheen_roughness=0.55, sheen_thickness=0.5,
+        source="2/2 twill of worsted two-ply wool, warp about twice the weft count (the steep "
+               "~63-degree twill line), ~130 x 65 threads/inch; twist 30 degrees and "
+               "inclination 30 degrees from Irawan & Marschner 2012's wool gabardine",
+        look="a steep, fine twill line and a soft sheen"),
+    Fabric(
+        name="linen", title="Linen", structure="woven", pattern="plain", repeat=8, texels_per_thread=8,
+        ends_per_cm=20, picks_per_cm=20, yarn_diameter_mm=(0.42, 0.42), slub=0.35,
+        fibre_twist_deg=-15.0, inclination_deg=28.0,
+        warp_color=(0.78, 0.72, 0.60), weft_color=(0.74, 0.68, 0.56),
+        roughness=0.35, thickness=2.0, specular_albedo=0.25, specular_transmittance=0.1,
+        diffuse_albedo=0.6, diffuse_transmittance=0.08,
+        sheen_color=(0.85, 0.8, 0.7), sheen_roughness=0.6, sheen_thickness=0.1,
+        source="plain weave of wet-spun flax, ~50 x 50 threads/inch, irregular (slubby) yarns "
+               "about +-35% in diameter; flax is spun with a low Z twist",
+        look="an uneven, slubby grid of natural-coloured yarns with a dry, low lustre"),
+    Fabric(
+        name="silk-shantung", title="Silk shantung", structure="woven", pattern="plain", repeat=8,
+        texels_per_thread=8,
+        ends_per_cm=60, picks_per_cm=26, yarn_diameter_mm=(0.16, 0.38), slub=0.4,
+        fibre_twist_deg=0.0, inclination_deg=23.0, profile_exponent=3.0,
+        warp_color=(0.62, 0.08, 0.12), weft_color=(0.85, 0.55, 0.12),
+        roughness=0.15, thickness=3.0, specular_albedo=0.7, specular_transmittance=0.08,
+        diffuse_albedo=0.2, diffuse_transmittance=0.04,
+        sheen_color=(0.9, 0.8, 0.6), sheen_roughness=0.5, sheen_thickness=0.05,
+        source="plain weave of fine filament silk warp and thick, slubbed (dupion) weft, "
+               "~150 x 65 threads/inch; 'shot' warp and weft of two colours; twist 0 and "
+               "warp/weft inclination 50/23 degrees from Irawan & Marschner 2012's silk shantung",
+        look="crosswise slubs and a colour that turns from the warp's to the weft's with the light"),
+    Fabric(
+        name="silk-organza", title="Silk organza", structure="woven", pattern="plain",
+        ends_per_cm=40, picks_per_cm=40, yarn_diameter_mm=(0.10, 0.10),
+        fibre_twist_deg=12.0, inclination_deg=25.0,
+        warp_color=(0.92, 0.90, 0.86), weft_color=(0.92, 0.90, 0.86),
+        roughness=0.18, thickness=1.5, specular_albedo=0.6, specular_transmittance=0.3,
+        diffuse_albedo=0.15, diffuse_transmittance=0.15,
+        sheen_color=(0.95, 0.95, 0.95), sheen_roughness=0.5, sheen_thickness=0.02,
+        source="sheer, open plain weave of fine, hard-twisted filament silk, ~100 x 100 "
+               "threads/inch; the yarns cover about 40% of each thread spacing",
+        look="see-through: the background shows through the open grid, with a crisp sheen"),
+    Fabric(
+        name="cotton-jersey", title="Cotton jersey", structure="knit", pattern="jersey",
+        ends_per_cm=14, picks_per_cm=18, yarn_diameter_mm=(0.3,),
+        fibre_twist_deg=-25.0, inclination_deg=0.0,
+        warp_color=(0.45, 0.47, 0.50), weft_color=(0.45, 0.47, 0.50),
+        roughness=0.5, thickness=2.0, specular_albedo=0.2, specular_transmittance=0.1,
+        diffuse_albedo=0.6, diffuse_transmittance=0.1,
+        sheen_color=(0.8, 0.8, 0.8), sheen_roughness=0.6, sheen_thickness=0.6,
+        source="single jersey of ring-spun cotton (T-shirt), ~36 wales x 46 courses per inch",
+        look="rows of small V-shaped loops, matte with a soft fuzzy sheen at grazing angles"),
+    Fabric(
+        name="wool-rib", title="Wool rib", structure="knit", pattern="rib-2-2",
+        ends_per_cm=6, picks_per_cm=7, yarn_diameter_mm=(0.9,),
+        fibre_twist_deg=25.0, inclination_deg=0.0,
+        warp_color=(0.45, 0.08, 0.10), weft_color=(0.45, 0.08, 0.10),
+        roughness=0.55, thickness=2.5, specular_albedo=0.15, specular_transmittance=0.05,
+        diffuse_albedo=0.65, diffuse_transmittance=0.05,
+        sheen_color=(0.85, 0.6, 0.6), sheen_roughness=0.7, sheen_thickness=1.2,
+        source="2x2 rib knit of worsted-weight wool (sweater cuffs), ~15 wales x 18 courses per inch",
+        look="raised vertical ribs and a strong fuzzy rim where the cloth turns away"),
+)}
+
+
+def fabric_names() -> list[str]:
+    return list(FABRICS)
+
+
+def fabric(name: str) -> Fabric:
+    """The preset called ``name``; an unknown name is an error naming the closest ones."""
+    if not isinstance(name, str) or name not in FABRICS:
+        close = difflib.get_close_matches(str(name), FABRICS, n=2)
+        hint = f" (did you mean {' or '.join(repr(c) for c in close)}?)" if close else ""
+        raise ParameterError(f"unknown fabric {name!r}{hint}: expected one of {', '.join(FABRICS)}")
+    return FABRICS[name]
+
+
+__all__ = ["FABRICS", "Fabric", "fabric", "fabric_names"]

@@ -1,0 +1,140 @@
+"""Fabric presets: complete parameter sets, true thread counts, physical UV scale, the
+swatch scene."""
+import math
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import mscloth
+from cloth_fixtures import non_delta_context
+from mscloth.errors import ParameterError
+from mscloth.fabrics import FABRICS, fabric
+from mscloth.maps.woven import float_heights
+
+mscloth.register()
+
+REQUIRED = {"silk-charmeuse", "polyester-satin", "cotton-poplin", "denim", "wool-gabardine",
+            "linen", "silk-shantung", "silk-organza", "cotton-jersey", "wool-rib"}
+
+
+def test_the_issue_s_fabrics_are_all_there_and_documented():
+    assert REQUIRED <= set(FABRICS)
+    for f in FABRICS.values():
+        assert f.source and f.look, f.name
+        assert f.structure in ("woven", "knit")
+
+
+@pytest.mark.parametrize("name", sorted(REQUIRED))
+def test_maps_have_the_stated_thread_count_and_gap_fraction(name):
+    f = fabric(name)
+    maps = f.maps()
+    width_mm, height_mm = maps.meta["tile_size_mm"]
+    if f.structure == "woven":
+        n_weft, n_warp = np.asarray(maps.meta["drawdown"]).shape
+        assert width_mm == pytest.approx(n_warp * 10.0 / f.ends_per_cm)
+        assert height_mm == pytest.approx(n_weft * 10.0 / f.picks_per_cm)
+        warp_ids = np.unique(maps.yarn_id[(maps.yarn_id >= 0) & (maps.yarn_id < n_warp)])
+        assert len(warp_ids) == n_warp  # every warp end of the repeat shows
+        # Texel-centre sampling moves a yarn's edge by up to half a texel on each side.
+        texels_per_thread = maps.resolution[1] / n_warp
+        tolerance = 2.0 / texels_per_thread
+        assert abs((1.0 - maps.gap.mean()) - f.gap_fraction) <= tolerance, name
+    else:
+        stitches = np.asarray(maps.meta["stitches"])
+        n_courses, n_wales = stitches.shape
+        assert width_mm == pytest.approx(n_wales * 10.0 / f.ends_per_cm)
+        assert height_mm == pytest.approx(n_courses * 10.0 / f.picks_per_cm)
+    dense = {"silk-charmeuse", "polyester-satin", "cotton-poplin", "denim", "wool-gabardine"}
+    if name in dense:
+        assert maps.gap.mean() == 1.0, f"{name} is dense: no gaps"
+    if name == "silk-organza":
+        assert 1.0 - maps.gap.mean() > 0.25, "organza is sheer: open gaps"
+
+
+def test_fabric_sets_defaults_that_parameters_override():
+    b = mi.load_dict({"type": "cloth", "fabric": "denim", "roughness": 0.2, "multiscale": False,
+                      "visibility": False})
+    assert dr.allclose(b.roughness, 0.2)
+    assert dr.allclose(b.thickness, fabric("denim").thickness)
+    assert dr.allclose(b.sheen_thickness, fabric("denim").sheen_thickness)
+    assert b.maps.meta["fabric"] == "denim"
+
+
+def test_unknown_fabric_names_the_closest():
+    from mscloth.loading import load_dict
+    with pytest.raises(ParameterError, match="did you mean 'silk-charmeuse'"):
+        load_dict({"type": "cloth", "fabric": "silk-charmeus"})
+
+
+def test_uv_unit_and_uv_scale_are_exclusive():
+    from mscloth.loading import load_dict
+
+    with pytest.raises(ParameterError, match="not both"):
+        load_dict({"type": "cloth", "fabric": "denim", "uv_unit": 1.0, "uv_scale": 3.0,
+                      "multiscale": False, "visibility": False})
+
+
+def _eval_along(bsdf, uv_per_mm: float, x_mm: np.ndarray):
+    """Fibre-level BSDF at points x_mm along u of a mesh with ``uv_per_mm`` UV units per mm."""
+    n = len(x_mm)
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.uv = mi.Point2f(mi.Float(x_mm * uv_per_mm), mi.Float(np.full(n, 0.37 * uv_per_mm)))
+    si.wi = mi.Vector3f(0.3, 0.2, 0.93)
+    si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
+    return np.array(bsdf.eval(non_delta_context(), si, mi.Vector3f(-0.2, 0.1, 0.97)))
+
+
+def test_same_fabric_same_yarn_size_whatever_the_uv_unit():
+    """A mesh in metres and one in decimetres (UV units 10x apart) show the same yarns at
+    the same physical positions."""
+    x_mm = np.linspace(0.0, 3.0, 997)
+    common = {"type": "cloth", "fabric": "denim", "multiscale": False, "visibility": False}
+    metres = mi.load_dict(dict(common, uv_unit=1.0))
+    decimetres = mi.load_dict(dict(common, uv_unit=0.1))
+    assert dr.allclose(metres.uv_scale, 10.0 * decimetres.uv_scale)
+    a = _eval_along(metres, 1e-3, x_mm)
+    b = _eval_along(decimetres, 1e-2, x_mm)
+    assert np.std(a) > 0.05 * np.mean(a)  # the weave varies along the line
+    assert np.allclose(a, b, rtol=1e-3, atol=1e-5)
+    # One tile per tile_size_mm: a fabric's default reads UVs in metres.
+    default = mi.load_dict(common)
+    width_mm = default.maps.meta["tile_size_mm"][0]
+    assert dr.allclose(default.uv_scale, 1000.0 / width_mm)
+
+
+def test_float_heights_arch_long_floats_and_keep_plain_weave():
+    plain = np.array([[1.0, -1.0], [-1.0, 1.0]])
+    assert np.array_equal(float_heights(plain, 1.0), plain)
+    satin_column = np.array([[-1.0], [1.0], [1.0], [1.0], [1.0]])
+    arched = float_heights(satin_column, 1.0)[:, 0]
+    s1, s2 = math.sin(math.pi / 5), math.sin(2 * math.pi / 5)
+    assert np.allclose(arched, [-1.0, 2 * s1 - 1, 2 * s2 - 1, 2 * s2 - 1, 2 * s1 - 1])
+    assert np.array_equal(float_heights(satin_column, 0.0), satin_column)
+    # A run that wraps around the repeat arches as one float.
+    wrapped = np.roll(satin_column, 2, axis=0)
+    assert np.allclose(float_heights(wrapped, 1.0), np.roll(float_heights(satin_column, 1.0), 2, axis=0))
+
+
+@pytest.mark.parametrize("name", sorted(REQUIRED))
+def test_each_preset_renders_without_nan(name, tmp_path):
+    """Every preset's parameters through the multi-scale BSDF (tiles of 64 texels, so the
+    tables build in a second; the presets' own maps are checked above)."""
+    from mscloth.loading import load_dict
+    from mscloth.scenes.swatch import swatch_scene
+
+    scene = load_dict(swatch_scene(24, 18, name, "arm", "studio", mesh_dir=tmp_path, resolution=64))
+    image = np.array(mi.render(scene, spp=2, seed=1))
+    assert np.all(np.isfinite(image))
+    assert image.mean() > 0.0
+
+
+@pytest.mark.parametrize("view,light", [("close", "studio"), ("room", "sunsky")])
+def test_swatch_views_and_lights(view, light, tmp_path):
+    from mscloth.loading import load_dict
+    from mscloth.scenes.swatch import swatch_scene
+
+    scene = load_dict(swatch_scene(24, 18, "silk-charmeuse", view, light, mesh_dir=tmp_path))
+    image = np.array(mi.render(scene, spp=2, seed=1))
+    assert np.all(np.isfinite(image)) and image.mean() > 0.0
