@@ -300,7 +300,7 @@ def build_parser() -> argparse.ArgumentParser:
     scene.set_defaults(func=cmd_scene)
 
     maps = sub.add_parser("maps", help="generate the fibre-level maps of a pattern (weave, WIF draft, knit)")
-    maps.add_argument("pattern", help="pattern name (plain, twill-2-1-S, satin-8-3, basket-2, jersey, rib-2-2) or a .wif file")
+    maps.add_argument("pattern", help="pattern name (plain, twill-2-1-S, satin-8-3, basket-2, jersey, rib-2-2, garter, seed) or a .wif file")
     maps.add_argument("--res", type=_positive_int(8, 16384), default=None,
                       help="texels along u (default: 64 per thread, in [64, 1024])")
     maps.add_argument("--out", required=True, help="output directory")
