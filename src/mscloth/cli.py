@@ -91,8 +91,15 @@ def _load_scene_file(path: Path, res):
                 if node is None:
                     node = ET.SubElement(film, "integer", name=key)
                 node.set("value", str(value))
-        mi.Thread.thread().file_resolver().prepend(str(path.parent.resolve()))
-        return mi.load_string(ET.tostring(tree.getroot(), encoding="unicode"))
+        # The scene's directory first while it loads, as mi.load_file does.
+        previous = mi.file_resolver()
+        resolver = mi.FileResolver(previous)
+        resolver.prepend(str(path.parent.resolve()))
+        mi.set_file_resolver(resolver)
+        try:
+            return mi.load_string(ET.tostring(tree.getroot(), encoding="unicode"))
+        finally:
+            mi.set_file_resolver(previous)
     except ET.ParseError as error:
         raise ClothError(f"{path}: not valid XML: {error}") from None
     except RuntimeError as error:
@@ -146,8 +153,8 @@ def cmd_scene(args) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     w, h = args.res or (512, 288)
     # Meshes and cloth maps next to the XML. Meshes are referenced relatively, so the folder
-    # can be moved; maps directories by absolute path (the cloth BSDF's ``pattern`` is
-    # resolved from the working directory, not the XML's).
+    # can be moved; maps directories by absolute path, as scene_maps returns them (relative
+    # ones would resolve against the XML's directory too).
     accepted = inspect.signature(SCENES[args.name]).parameters
     kwargs = {key: out.parent.resolve() / sub for key, sub in (("mesh_dir", "meshes"), ("maps_dir", "maps"))
               if key in accepted}

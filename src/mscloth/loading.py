@@ -1,4 +1,5 @@
-"""Loading Mitsuba scenes and plugins with mscloth's errors surfaced plainly.
+"""Loading Mitsuba scenes and plugins with mscloth's errors surfaced plainly, and file
+paths in scenes resolved as Mitsuba resolves its own.
 
 Mitsuba wraps an exception raised inside a plugin constructor into a
 RuntimeError that carries the whole Python traceback; we pull our own error's
@@ -44,3 +45,11 @@ def load_file(path: str):
         if unwrapped is error:
             raise
         raise unwrapped from None
+
+
+def resolve_scene_path(path: str) -> str:
+    """A file or directory path named in a scene, found as Mitsuba finds its own (a mesh's
+    ``filename``): through the thread's file resolver, which while ``mi.load_file`` loads a
+    scene starts with the scene file's directory. A relative path found nowhere comes back
+    unchanged (then relative to the working directory)."""
+    return str(mi.file_resolver().resolve(path))

@@ -12,6 +12,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..jit_arrays import flat_array, gather_block
+from ..loading import resolve_scene_path
 from ..maps.builtin import resolve_pattern
 from ..scattering import sheen, spongecake
 from .footprint_data import FootprintData
@@ -49,7 +50,8 @@ back side sees the same maps mirrored through the surface.
      - ``plain``
      - Cloth maps: a pattern name (``plain``, ``twill-2-1``, ``satin-8-3``,
        ``basket-2``, ``jersey``, ``rib-2-2``...), a ``.wif`` draft file, or a
-       directory written by ``ClothMaps.save`` / ``mscloth maps``.
+       directory written by ``ClothMaps.save`` / ``mscloth maps``. Relative paths are
+       found as Mitsuba finds a mesh's ``filename``: first in the scene file's directory.
    * - resolution
      - integer
      - 0
@@ -219,7 +221,8 @@ def make_cloth_class():
             # constructed (and registered for virtual calls) by an __init__ that then raises
             # leaves a dangling registry entry, and a later render crashes on it.
             p = read_parameters(props)
-            maps = resolve_pattern(p.pattern, p.resolution)
+            # Relative paths are the scene file's, as for Mitsuba's own plugins.
+            maps = resolve_pattern(p.pattern, p.resolution, locate=resolve_scene_path)
             mi.BSDF.__init__(self, props)
             self.pattern = p.pattern
             self.maps = maps
