@@ -6,6 +6,7 @@ import inspect
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 
 from . import __version__
@@ -74,13 +75,14 @@ def _load_scene_file(path: Path, res):
 
     import mitsuba as mi
 
-    from .loading import unwrap_plugin_error
+    from .loading import load_file, unwrap_plugin_error
+    from .scene_checks import warn_about_scene
 
     if not path.is_file():
         raise ClothError(f"scene file {path} does not exist")
     try:
         if res is None:
-            return mi.load_file(str(path))
+            return load_file(path)  # checked there
         tree = ET.parse(path)
         films = tree.getroot().findall(".//film")
         if not films:
@@ -97,7 +99,7 @@ def _load_scene_file(path: Path, res):
         resolver.prepend(str(path.parent.resolve()))
         mi.set_file_resolver(resolver)
         try:
-            return mi.load_string(ET.tostring(tree.getroot(), encoding="unicode"))
+            scene = mi.load_string(ET.tostring(tree.getroot(), encoding="unicode"))
         finally:
             mi.set_file_resolver(previous)
     except ET.ParseError as error:
@@ -108,6 +110,8 @@ def _load_scene_file(path: Path, res):
             raise unwrapped from None
         lines = [line for line in str(error).splitlines() if line.strip()]
         raise ClothError(f"cannot load {path}: {lines[0] if lines else error}") from None
+    warn_about_scene(scene)
+    return scene
 
 
 def cmd_render(args) -> int:
@@ -340,13 +344,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning as one line, like errors (not the source line that raised it)."""
+    text = str(message).removeprefix("mscloth: ")
+    print(f"mscloth: warning: {text}", file=file or sys.stderr)
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    try:
-        return args.func(args)
-    except ClothError as error:
-        print(f"mscloth: error: {error}", file=sys.stderr)
-        return 2
-    except OSError as error:
-        print(f"mscloth: error: {error}", file=sys.stderr)
-        return 2
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        try:
+            return args.func(args)
+        except ClothError as error:
+            print(f"mscloth: error: {error}", file=sys.stderr)
+            return 2
+        except OSError as error:
+            print(f"mscloth: error: {error}", file=sys.stderr)
+            return 2
