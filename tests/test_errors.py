@@ -46,8 +46,12 @@ def test_unknown_pattern_names_the_choices():
 
 
 def test_missing_maps_directory(tmp_path):
-    with pytest.raises(PatternError, match="unknown pattern"):
-        load_dict({"type": "cloth", "pattern": str(tmp_path / "nowhere")})
+    # A path (it has a separator) names a directory that is missing, not an unknown name.
+    missing = str(tmp_path / "nowhere")
+    with pytest.raises(PatternError, match=f"maps directory '{missing}' does not exist"):
+        load_dict({"type": "cloth", "pattern": missing})
+    with pytest.raises(PatternError, match="maps directory 'maps/nowhere' does not exist.*working directory"):
+        load_dict({"type": "cloth", "pattern": "maps/nowhere"})
 
 
 def test_corrupt_maps_directory(tmp_path):

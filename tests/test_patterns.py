@@ -177,6 +177,18 @@ def test_cli_maps_takes_knits_and_wif_files(tmp_path, pattern):
     assert (out / "contact_sheet.png").stat().st_size > 0
 
 
+@pytest.mark.parametrize("pattern,stitches", [("garter", [[1], [0]]), ("seed", [[1, 0], [0, 1]])])
+def test_cli_maps_takes_garter_and_seed(tmp_path, pattern, stitches):
+    # The README lists them among the knits `mscloth maps` and `pattern` take.
+    from mscloth.cli import main
+
+    out = tmp_path / pattern
+    assert main(["maps", pattern, "--res", "32", "--out", str(out)]) == 0
+    meta = json.loads((out / "maps.json").read_text())["meta"]
+    assert meta["generator"] == "knit" and meta["stitches"] == stitches
+    assert named_pattern(pattern).name == pattern
+
+
 def test_drawdown_array_directly():
     maps = generate_maps(np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1]]), 96)
     assert maps.resolution == (96, 96)

@@ -6,6 +6,7 @@ import inspect
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 
 from . import __version__
@@ -74,13 +75,14 @@ def _load_scene_file(path: Path, res):
 
     import mitsuba as mi
 
-    from .loading import unwrap_plugin_error
+    from .loading import load_file, unwrap_plugin_error
+    from .scene_checks import warn_about_scene
 
     if not path.is_file():
         raise ClothError(f"scene file {path} does not exist")
     try:
         if res is None:
-            return mi.load_file(str(path))
+            return load_file(path)  # checked there
         tree = ET.parse(path)
         films = tree.getroot().findall(".//film")
         if not films:
@@ -91,8 +93,15 @@ def _load_scene_file(path: Path, res):
                 if node is None:
                     node = ET.SubElement(film, "integer", name=key)
                 node.set("value", str(value))
-        mi.Thread.thread().file_resolver().prepend(str(path.parent.resolve()))
-        return mi.load_string(ET.tostring(tree.getroot(), encoding="unicode"))
+        # The scene's directory first while it loads, as mi.load_file does.
+        previous = mi.file_resolver()
+        resolver = mi.FileResolver(previous)
+        resolver.prepend(str(path.parent.resolve()))
+        mi.set_file_resolver(resolver)
+        try:
+            scene = mi.load_string(ET.tostring(tree.getroot(), encoding="unicode"))
+        finally:
+            mi.set_file_resolver(previous)
     except ET.ParseError as error:
         raise ClothError(f"{path}: not valid XML: {error}") from None
     except RuntimeError as error:
@@ -101,6 +110,8 @@ def _load_scene_file(path: Path, res):
             raise unwrapped from None
         lines = [line for line in str(error).splitlines() if line.strip()]
         raise ClothError(f"cannot load {path}: {lines[0] if lines else error}") from None
+    warn_about_scene(scene)
+    return scene
 
 
 def cmd_render(args) -> int:
@@ -151,8 +162,8 @@ def cmd_scene(args) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     w, h = args.res or (512, 288)
     # Meshes and cloth maps next to the XML. Meshes are referenced relatively, so the folder
-    # can be moved; maps directories by absolute path (the cloth BSDF's ``pattern`` is
-    # resolved from the working directory, not the XML's).
+    # can be moved; maps directories by absolute path, as scene_maps returns them (relative
+    # ones would resolve against the XML's directory too).
     accepted = inspect.signature(SCENES[args.name]).parameters
     kwargs = {key: out.parent.resolve() / sub for key, sub in (("mesh_dir", "meshes"), ("maps_dir", "maps"))
               if key in accepted}
@@ -333,7 +344,7 @@ def build_parser() -> argparse.ArgumentParser:
     scene.set_defaults(func=cmd_scene)
 
     maps = sub.add_parser("maps", help="generate the fibre-level maps of a pattern (weave, WIF draft, knit)")
-    maps.add_argument("pattern", help="pattern name (plain, twill-2-1-S, satin-8-3, basket-2, jersey, rib-2-2) or a .wif file")
+    maps.add_argument("pattern", help="pattern name (plain, twill-2-1-S, satin-8-3, basket-2, jersey, rib-2-2, garter, seed) or a .wif file")
     maps.add_argument("--res", type=_positive_int(8, 16384), default=None,
                       help="texels along u (default: 64 per thread, in [64, 1024])")
     maps.add_argument("--out", required=True, help="output directory")
@@ -371,13 +382,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning as one line, like errors (not the source line that raised it)."""
+    text = str(message).removeprefix("mscloth: ")
+    print(f"mscloth: warning: {text}", file=file or sys.stderr)
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    try:
-        return args.func(args)
-    except ClothError as error:
-        print(f"mscloth: error: {error}", file=sys.stderr)
-        return 2
-    except OSError as error:
-        print(f"mscloth: error: {error}", file=sys.stderr)
-        return 2
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        try:
+            return args.func(args)
+        except ClothError as error:
+            print(f"mscloth: error: {error}", file=sys.stderr)
+            return 2
+        except OSError as error:
+            print(f"mscloth: error: {error}", file=sys.stderr)
+            return 2

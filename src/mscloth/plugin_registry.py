@@ -27,3 +27,9 @@ def plugin_class(name: str, register: Callable, make_class: Callable[[], type]) 
         register(name, lambda props: cls(props))
         _classes[key] = cls
     return _classes[key]
+
+
+def registered_class(name: str) -> type | None:
+    """The class of plugin ``name`` for the active variant, or None if it was never
+    registered (then no scene of this variant holds one)."""
+    return _classes.get((mi.variant(), name))

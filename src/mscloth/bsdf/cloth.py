@@ -48,7 +48,8 @@ back side sees the same maps mirrored through the surface.
      - ``plain``
      - Cloth maps: a pattern name (``plain``, ``twill-2-1``, ``satin-8-3``,
        ``basket-2``, ``jersey``, ``rib-2-2``...), a ``.wif`` draft file, or a
-       directory written by ``ClothMaps.save`` / ``mscloth maps``.
+       directory written by ``ClothMaps.save`` / ``mscloth maps``. Relative paths are
+       found as Mitsuba finds a mesh's ``filename``: first in the scene file's directory.
    * - resolution
      - integer
      - 0

@@ -231,9 +231,11 @@ def cloth_maps(p: ClothParameters):
         from ..fabrics import fabric
 
         return fabric(p.fabric).maps(p.resolution)
+    from ..loading import resolve_scene_path
     from ..maps.builtin import resolve_pattern
 
-    return resolve_pattern(p.pattern, p.resolution)
+    # Relative paths are the scene file's, as for Mitsuba's own plugins.
+    return resolve_pattern(p.pattern, p.resolution, locate=resolve_scene_path)
 
 
 def uv_scales(p: ClothParameters, maps) -> tuple[float, float]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import functools
 import os
 from pathlib import Path
+from typing import Callable
 
 from ..errors import ParameterError, PatternError
 from ..patterns.named import NAMED, is_wif_path, named_pattern, pattern_names
@@ -50,31 +51,53 @@ def _load_dir(path: str, stamp: tuple[int, int]) -> ClothMaps:
     return ClothMaps.load(path)
 
 
-def resolve_pattern(spec: str | os.PathLike, resolution: int | tuple[int, int] | None = None
-                    ) -> ClothMaps:
+def resolve_pattern(spec: str | os.PathLike, resolution: int | tuple[int, int] | None = None,
+                    locate: Callable[[str], str] | None = None) -> ClothMaps:
     """Maps for a pattern name, a ``.wif`` file or a maps directory.
 
     A pattern name wins over a same-named directory (write ``./plain`` for the directory).
     ``resolution`` (int: texels along u, or (H, W)) applies to generated patterns; for a
-    directory it must be None or match the stored maps.
+    directory it must be None or match the stored maps. ``locate`` maps a file or directory
+    path to where it is (the ``cloth`` plugin passes Mitsuba's file resolver, so that paths
+    in a scene file are relative to its directory); without it, paths are relative to the
+    working directory.
     """
     if not isinstance(spec, (str, os.PathLike)):
         raise PatternError(f"pattern must be a pattern name, a .wif file or a maps directory, "
                            f"got {spec!r}")
     text = os.fspath(spec)
     resolution = _resolution_key(resolution)
-    path = Path(text)
+    is_name = text.split("-")[0].lower() in NAMED
+    path = Path(locate(text) if locate is not None and text and not is_name else text)
     if is_wif_path(text):
         if not path.is_file():
-            raise PatternError(f"WIF file {text!r} does not exist")
+            raise PatternError(f"WIF file {text!r} does not exist{_where(text, locate)}")
         resolved = path.resolve()
         return _generated(str(resolved), resolution, _mtime_ns(resolved))
-    if text and path.is_dir() and text.split("-")[0].lower() not in NAMED:
-        return _from_directory(text, path, resolution)
-    if text.split("-")[0].lower() in NAMED:
+    if is_name:
         return _generated(text, resolution, 0)
+    if text and path.is_dir():
+        return _from_directory(text, path, resolution)
+    if _looks_like_path(text):
+        what = "is not a directory" if path.exists() else f"does not exist{_where(text, locate)}"
+        raise PatternError(f"maps directory {text!r} {what}")
     raise PatternError(f"unknown pattern {text!r}: expected one of {pattern_names()}, "
                        "a .wif file or a maps directory")
+
+
+def _looks_like_path(text: str) -> bool:
+    """Whether a pattern that is neither a name nor an existing directory was meant as a path
+    (then it is a missing directory, not an unknown name)."""
+    separators = {os.sep, os.altsep or os.sep}
+    return text.startswith((".", "~")) or any(sep in text for sep in separators)
+
+
+def _where(text: str, locate) -> str:
+    """Where a missing relative path was looked for, for its error message."""
+    if Path(text).is_absolute():
+        return ""
+    return (" (relative to the scene file's directory or the working directory)" if locate is not None
+            else f" (relative to the working directory {os.getcwd()})")
 
 
 def _from_directory(text: str, path: Path, resolution) -> ClothMaps:

@@ -1,5 +1,5 @@
 """Patterns by name: ``plain``, ``twill-2-1-S``, ``satin-8-3``, ``basket-2``, ``jersey``,
-``rib-2-2``... and WIF files by path.
+``rib-2-2``, ``garter``, ``seed``... and WIF files by path.
 
 A name is a weave or knit followed by its integer arguments, joined by ``-``; missing
 arguments take the constructor's defaults. ``weft-faced`` satins are ``sateen-N-STEP``.
@@ -30,6 +30,8 @@ NAMED = {
     "basket": (weaves.basket, 1, "basket-N"),
     "jersey": (_knit("jersey"), 0, "jersey (stockinette)"),
     "rib": (_knit("rib"), 2, "rib-K-P, e.g. rib-1-1, rib-2-2"),
+    "garter": (_knit("garter"), 0, "garter"),
+    "seed": (_knit("seed"), 0, "seed (moss)"),
 }
 
 

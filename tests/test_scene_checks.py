@@ -1,0 +1,108 @@
+"""Scenes that would render worse than they should warn once (mscloth.scene_checks), and
+only those."""
+import warnings
+
+import mitsuba as mi
+import pytest
+
+import mscloth
+from mscloth.loading import load_dict, load_file
+from mscloth.scene_checks import SceneWarning
+
+mscloth.register()
+
+#: Cheap cloth: no tables to build.
+FIBRE = {"type": "cloth", "resolution": 16, "multiscale": False, "visibility": False}
+MULTISCALE = {"type": "cloth", "resolution": 16}
+
+
+def _ply(path, uvs: bool) -> str:
+    """A one-triangle PLY file, with or without texture coordinates."""
+    mesh = mi.Mesh("triangle", 3, 1, has_vertex_texcoords=uvs)
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = [0, 0, 0, 1, 0, 0, 0, 1, 0]
+    params["faces"] = [0, 1, 2]
+    if uvs:
+        params["vertex_texcoords"] = [0, 0, 1, 0, 0, 1]
+    params.update()
+    mesh.write_ply(str(path))
+    return str(path)
+
+
+def _scene(integrator="path", **shapes) -> dict:
+    scene = {"type": "scene", **shapes}
+    if integrator is not None:
+        scene["integrator"] = integrator if isinstance(integrator, dict) else {"type": integrator}
+    return scene
+
+
+def _scene_warnings(load, *args) -> list[str]:
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        load(*args)
+    return [str(w.message) for w in caught if issubclass(w.category, SceneWarning)]
+
+
+def test_mesh_without_uvs_under_cloth_warns_once_naming_it(tmp_path):
+    flat = _ply(tmp_path / "flat.ply", uvs=False)
+    scene = _scene(sheet={"type": "ply", "filename": flat, "bsdf": FIBRE},
+                   ball={"type": "sphere", "bsdf": FIBRE})
+    messages = _scene_warnings(load_dict, scene)
+    assert len(messages) == 1, messages
+    assert "'sheet'" in messages[0] and "without UV" in messages[0] and "'ball'" not in messages[0]
+
+
+def test_mesh_without_uvs_in_a_scene_file_is_named_by_its_file(tmp_path):
+    _ply(tmp_path / "flat.ply", uvs=False)
+    xml = tmp_path / "scene.xml"
+    xml.write_text('<scene version="3.0.0"><shape type="ply"><string name="filename" value="flat.ply"/>'
+                   '<bsdf type="cloth"><integer name="resolution" value="16"/>'
+                   '<boolean name="multiscale" value="false"/><boolean name="visibility" value="false"/>'
+                   '</bsdf></shape></scene>')
+    messages = _scene_warnings(load_file, xml)
+    assert len(messages) == 1 and "'flat.ply'" in messages[0], messages
+
+
+@pytest.mark.parametrize("shape", ["mesh with UVs", "sphere", "rectangle", "disk", "cylinder",
+                                   "mesh without UVs, not cloth"])
+def test_shapes_with_uvs_or_without_cloth_do_not_warn(tmp_path, shape):
+    if shape.startswith("mesh"):
+        with_uvs = shape == "mesh with UVs"
+        node = {"type": "ply", "filename": _ply(tmp_path / "m.ply", uvs=with_uvs),
+                "bsdf": FIBRE if with_uvs else {"type": "diffuse"}}
+    else:
+        node = {"type": shape, "bsdf": FIBRE}
+    assert _scene_warnings(load_dict, _scene(s=node)) == []
+
+
+def test_multiscale_cloth_under_path_warns_once_to_use_clothpath():
+    scene = _scene(a={"type": "rectangle", "bsdf": MULTISCALE}, b={"type": "sphere", "bsdf": MULTISCALE})
+    messages = _scene_warnings(load_dict, scene)
+    assert len(messages) == 1, messages
+    assert "clothpath" in messages[0] and "PathIntegrator" in messages[0] and "'a'" in messages[0]
+
+
+@pytest.mark.parametrize("bsdf,integrator", [
+    (FIBRE, "path"),                    # fibre-level cloth needs no footprints
+    (MULTISCALE, "clothpath"),
+    (MULTISCALE, {"type": "aov", "aovs": "dd:depth", "inner": {"type": "clothpath"}}),
+    (MULTISCALE, None),                 # the integrator comes with mi.render: unknown here
+])
+def test_cloth_that_gets_the_footprints_it_needs_does_not_warn(bsdf, integrator):
+    assert _scene_warnings(load_dict, _scene(integrator, s={"type": "rectangle", "bsdf": bsdf})) == []
+
+
+def test_cli_render_warns_in_one_line(tmp_path, capsys):
+    # `mscloth render x.xml --res` loads through its own path (the film size rewritten).
+    from mscloth.cli import main
+
+    _ply(tmp_path / "flat.ply", uvs=False)
+    xml = tmp_path / "scene.xml"
+    xml.write_text('<scene version="3.0.0"><integrator type="path"/>'
+                   '<sensor type="perspective"><film type="hdrfilm"/></sensor>'
+                   '<shape type="ply" id="sheet"><string name="filename" value="flat.ply"/><bsdf type="cloth">'
+                   '<integer name="resolution" value="16"/><boolean name="multiscale" value="false"/>'
+                   '<boolean name="visibility" value="false"/></bsdf></shape></scene>')
+    assert main(["render", str(xml), "--spp", "1", "--res", "8x8", "--out", str(tmp_path / "x.exr")]) == 0
+    lines = [line for line in capsys.readouterr().err.splitlines() if "warning" in line.lower()]
+    assert len(lines) == 1 and lines[0].startswith("mscloth: warning: cloth on 'sheet'"), lines
