@@ -133,7 +133,7 @@ class Fabric:
 
     def maps(self, resolution: int | None = None):
         """Cloth maps of one tile at the fabric's true thread count (cached)."""
-        return _fabric_maps(self.name, resolution or self.default_resolution())
+        return _fabric_maps(self, resolution or self.default_resolution())
 
     # ------------------------------------------------------------------ BSDF
     def bsdf_parameters(self) -> dict:
@@ -199,8 +199,7 @@ def _woven_draft(fabric: Fabric):
 
 
 @functools.lru_cache(maxsize=8)
-def _fabric_maps(name: str, resolution: int):
-    fabric = FABRICS[name]
+def _fabric_maps(fabric: Fabric, resolution: int):
     if fabric.structure == "woven":
         from .maps.woven import woven_maps
 
@@ -216,7 +215,7 @@ def _fabric_maps(name: str, resolution: int):
         maps = knit_maps(pattern, resolution, yarn_width=min(1.0, fabric._diameters()[0] / wale_mm),
                          loop_aspect=fabric.ends_per_cm / fabric.picks_per_cm,
                          fibre_twist_deg=fabric.fibre_twist_deg, wale_spacing_mm=wale_mm)
-    maps.meta["fabric"] = name
+    maps.meta["fabric"] = fabric.name
     return maps
 
 
@@ -342,6 +341,18 @@ FABRICS: dict[str, Fabric] = {f.name: f for f in (
 )}
 
 
+def register_fabric(preset: Fabric, replace: bool = False) -> Fabric:
+    """Make ``preset`` available by name to the ``cloth`` plugin's ``fabric`` parameter
+    (e.g. a variant made with :func:`dataclasses.replace`); an existing name is an error
+    unless ``replace``."""
+    if not isinstance(preset, Fabric):
+        raise ParameterError(f"register_fabric: expected a Fabric, got {type(preset).__name__}")
+    if preset.name in FABRICS and not replace:
+        raise ParameterError(f"fabric {preset.name!r} exists; pass replace=True to replace it")
+    FABRICS[preset.name] = preset
+    return preset
+
+
 def fabric_names() -> list[str]:
     return list(FABRICS)
 
@@ -355,4 +366,4 @@ def fabric(name: str) -> Fabric:
     return FABRICS[name]
 
 
-__all__ = ["FABRICS", "Fabric", "fabric", "fabric_names"]
+__all__ = ["FABRICS", "Fabric", "fabric", "fabric_names", "register_fabric"]

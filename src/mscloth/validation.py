@@ -13,7 +13,7 @@ def _unit(v):
     return (v / np.linalg.norm(v)).tolist()
 
 
-def _non_delta_context():
+def non_delta_context():
     ctx = mi.BSDFContext()
     ctx.type_mask = +mi.BSDFFlags.All & ~+mi.BSDFFlags.Delta
     return ctx
@@ -36,7 +36,7 @@ def footprint_expectation(bsdf, uv, half_texels, tile_texels, wi, wo, n=20000, s
     over uniformly placed control-variate residual texels, uniform SAT corner rounding and
     probe choice, with the footprint shaded whole (the footprint branch, whatever its size)."""
     si = footprint_interaction(n, uv, half_texels, tile_texels, wi)
-    enabled = bsdf.enabled(_non_delta_context())
+    enabled = bsdf.enabled(non_delta_context())
     fr = bsdf.frame(si, True)
     rng = np.random.default_rng(seed)
     xi = mi.Point2f(rng.random(n), rng.random(n))
@@ -56,7 +56,7 @@ def brute_force(params: dict, uv, half_texels, tile_texels, wi, wo, n=200000, se
     si = dr.zeros(mi.SurfaceInteraction3f, n)
     si.wi = mi.Vector3f(_unit(wi))
     si.uv = mi.Point2f(p[:, 0], p[:, 1])
-    v = np.array(point.eval(_non_delta_context(), si, mi.Vector3f(_unit(wo))))[0]
+    v = np.array(point.eval(non_delta_context(), si, mi.Vector3f(_unit(wo))))[0]
     return float(v.mean()), float(v.std() / np.sqrt(n))
 
 
@@ -123,7 +123,7 @@ def shading_expectation(bsdf, si, wo, seed=3):
     si.p = mi.Point3f(*(mi.Float(rng.random(n) * 10.0) for _ in range(3)))
     if not isinstance(wo, mi.Vector3f):
         wo = mi.Vector3f(_unit(wo))
-    v = np.array(bsdf.eval(_non_delta_context(), si, wo))[0]
+    v = np.array(bsdf.eval(non_delta_context(), si, wo))[0]
     return float(v.mean()), float(v.std() / np.sqrt(n))
 
 
@@ -140,5 +140,5 @@ def parallelogram_brute_force(params: dict, uv, a_texels: float, shear: float, t
     a, b = mi.Float(curvature * du), mi.Float(curvature * dv)
     si.wi = to_tilted(mi.Vector3f(_unit(wi)), a, b)
     wo_local = to_tilted(mi.Vector3f(_unit(wo)), a, b)
-    v = np.array(point.eval(_non_delta_context(), si, wo_local))[0]
+    v = np.array(point.eval(non_delta_context(), si, wo_local))[0]
     return float(v.mean()), float(v.std() / np.sqrt(n))
