@@ -69,28 +69,31 @@ def _resolution_arg(text: str) -> tuple[int, int]:
 
 
 def _load_scene_file(path: Path, res):
-    """Load a Mitsuba XML scene, overriding its film's width/height when ``res`` is given."""
+    """Load a Mitsuba XML scene, overriding its film's width/height when ``res`` is given and
+    naming its cloths after their shapes (:func:`mscloth.loading.name_xml_cloths`)."""
     import xml.etree.ElementTree as ET
 
     import mitsuba as mi
 
-    from .loading import unwrap_plugin_error
+    from .loading import name_xml_cloths, unwrap_plugin_error
 
     if not path.is_file():
         raise ClothError(f"scene file {path} does not exist")
     try:
-        if res is None:
-            return mi.load_file(str(path))
         tree = ET.parse(path)
-        films = tree.getroot().findall(".//film")
-        if not films:
-            raise ClothError(f"{path}: no <film> to set --res on")
-        for film in films:
-            for key, value in (("width", res[0]), ("height", res[1])):
-                node = film.find(f"integer[@name='{key}']")
-                if node is None:
-                    node = ET.SubElement(film, "integer", name=key)
-                node.set("value", str(value))
+        named = name_xml_cloths(tree.getroot())
+        if res is None and not named:
+            return mi.load_file(str(path))
+        if res is not None:
+            films = tree.getroot().findall(".//film")
+            if not films:
+                raise ClothError(f"{path}: no <film> to set --res on")
+            for film in films:
+                for key, value in (("width", res[0]), ("height", res[1])):
+                    node = film.find(f"integer[@name='{key}']")
+                    if node is None:
+                        node = ET.SubElement(film, "integer", name=key)
+                    node.set("value", str(value))
         mi.Thread.thread().file_resolver().prepend(str(path.parent.resolve()))
         return mi.load_string(ET.tostring(tree.getroot(), encoding="unicode"))
     except ET.ParseError as error:
