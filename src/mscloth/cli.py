@@ -41,20 +41,20 @@ def cmd_demo(args) -> int:
     import mitsuba as mi
 
     from .loading import load_dict
-    from .render import render_progressive, write_images
+    from .render import KernelCompilation, render_progressive, throughput_text, write_images
     from .scenes.demo import demo_scene
 
     variant = _setup(args.variant)
     out = Path(args.out)
     exr = out / "demo.exr"
     print(f"mscloth demo: {args.res}x{args.res}, {args.spp} spp, variant {variant}")
-    started = time.perf_counter()
     scene = load_dict(demo_scene(resolution=args.res))
-    image = render_progressive(scene, args.spp, label="demo")
+    started = time.perf_counter()
+    with KernelCompilation() as compiling:
+        image = render_progressive(scene, args.spp, label="demo")
     seconds = time.perf_counter() - started
     exr, png = write_images(image, exr)
-    rate = args.res * args.res * args.spp / seconds
-    print(f"wrote {exr} and {png} in {seconds:.1f} s ({rate / 1e6:.2f} M samples/s)")
+    print(f"wrote {exr} and {png}: {throughput_text(args.res * args.res * args.spp, seconds, compiling.seconds)}")
     return 0
 
 
@@ -110,7 +110,7 @@ def cmd_render(args) -> int:
     import mitsuba as mi
 
     from .loading import load_dict
-    from .render import render_progressive, write_images
+    from .render import KernelCompilation, render_progressive, throughput_text, write_images
     from .scenes.builtin import SCENES, builtin_scene
 
     out = Path(args.out)
@@ -127,10 +127,11 @@ def cmd_render(args) -> int:
     w, h = scene.sensors()[0].film().size()
     print(f"mscloth render: {args.scene}, {w}x{h}, {args.spp} spp, variant {variant}", flush=True)
     started = time.perf_counter()
-    image = render_progressive(scene, args.spp, label="render")
+    with KernelCompilation() as compiling:
+        image = render_progressive(scene, args.spp, label="render")
     seconds = time.perf_counter() - started
     exr, png = write_images(image, out)
-    print(f"wrote {exr} and {png} in {seconds:.1f} s ({w * h * args.spp / seconds / 1e6:.2f} M samples/s)")
+    print(f"wrote {exr} and {png}: {throughput_text(w * h * args.spp, seconds, compiling.seconds)}")
     return 0
 
 

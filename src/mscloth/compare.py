@@ -280,23 +280,16 @@ class Render:
 
 def timed_render(scene, spp: int, seed: int) -> Render:
     """One ``mi.render`` read back to NumPy; time without the kernel compilation it triggered."""
-    import drjit as dr
     import mitsuba as mi
 
+    from .render import KernelCompilation
+
     gc.collect()  # see render.render_progressive: no plugin freed mid-trace
-    dr.sync_thread()
-    had_history = dr.flag(dr.JitFlag.KernelHistory)
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    dr.kernel_history()  # clear
-    try:
+    with KernelCompilation() as compiling:
         start = time.perf_counter()
         image = np.array(mi.render(scene, spp=spp, seed=seed))[..., :3]
         wall = time.perf_counter() - start
-        history = dr.kernel_history()
-    finally:
-        dr.set_flag(dr.JitFlag.KernelHistory, had_history)
-    compile_ms = sum(k.get("codegen_time", 0.0) + k.get("backend_time", 0.0) for k in history)
-    compile_s = min(compile_ms / 1000.0, wall)
+    compile_s = min(compiling.seconds, wall)
     return Render(spp, seed, max(wall - compile_s, 1e-6), compile_s, image.astype(np.float32))
 
 
