@@ -100,7 +100,7 @@ def _tick_label(value, _position=None) -> str:
     return f"{value:.3g}"
 
 
-#: Mantissas of log-axis ticks, roundest first (see :func:`label_log_axis`).
+#: Rank of each mantissa of log-axis ticks, roundest first (see :func:`log_ticks`).
 _MANTISSA_RANK = {1: 0, 2: 1, 5: 1, 3: 2, 4: 2, 6: 3, 7: 3, 8: 3, 9: 3}
 #: Labelled ticks on a log axis stay at least this fraction of its span apart (at most ~7).
 _TICK_SPACING = 1.0 / 6.0
@@ -149,8 +149,6 @@ def convergence_figure(result: dict):
     row of six panels did not fit a browser window). Log axes with labelled ticks
     (:func:`label_log_axis`); a region with too few pixels says so in red in its title."""
     from matplotlib.figure import Figure
-
-    from .compare import few_pixels_warning
 
     rows, cols = len(REGIONS), 2
     figure = Figure(figsize=(CONVERGENCE_WIDTH_PX / FIGURE_DPI, rows * CONVERGENCE_ROW_PX / FIGURE_DPI),
