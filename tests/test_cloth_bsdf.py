@@ -416,3 +416,55 @@ def test_gap_transmission_skips_the_tables_only_for_lanes_without_a_footprint():
     assert np.all(np.isclose(mixed[point], 0.0, atol=1e-7) | np.isclose(mixed[point], t2, rtol=1e-5))
     assert np.any(mixed[point] > 0.0) and np.any(mixed[point] == 0.0)
     assert np.any((mixed[footprint] > 0.0) & (mixed[footprint] < 0.9 * np.max(t2)))
+
+
+def _small_cloth(pattern):
+    return {"type": "cloth", "pattern": pattern, "resolution": 32, "direction_bins": 4, "visibility_bins": 2,
+            "clusters": 2}
+
+
+def test_name_cloths_names_nested_cloths_after_their_shape_and_leaves_ids_alone():
+    from mscloth.loading import name_cloths
+
+    scene = {"type": "scene", "floor": {"type": "rectangle", "bsdf": _small_cloth("plain")},
+             "ball": {"type": "sphere", "bsdf": dict(_small_cloth("plain"), id="mine")},
+             "wrapped": {"type": "sphere", "bsdf": {"type": "twosided", "bsdf": _small_cloth("plain")}},
+             "mat": _small_cloth("plain"), "other": {"type": "sphere", "bsdf": {"type": "diffuse"}}}
+    named = name_cloths(scene)
+    assert named["floor"]["bsdf"]["id"] == "floor.bsdf" and named["ball"]["bsdf"]["id"] == "mine"
+    assert named["wrapped"]["bsdf"]["bsdf"]["id"] == "wrapped.bsdf.bsdf"
+    assert "id" not in named["mat"] and "id" not in named["other"]["bsdf"]  # top level: its key is its id
+    assert "id" not in scene["floor"]["bsdf"] and named["other"] is scene["other"]  # the input is not changed
+    taken = {"type": "scene", "floor.bsdf": {"type": "diffuse"}, "floor": {"type": "rectangle", "bsdf": _small_cloth("plain")}}
+    assert "id" not in name_cloths(taken)["floor"]["bsdf"]  # an id in use is not given twice
+
+
+def test_name_xml_cloths_names_cloths_inside_shapes():
+    import xml.etree.ElementTree as ET
+
+    from mscloth.loading import name_xml_cloths
+
+    root = ET.fromstring("<scene version='3.0.0'><shape type='sphere' id='ball'><bsdf type='cloth'/></shape>"
+                         "<shape type='sphere' id='cup'><bsdf type='cloth' id='glaze'/></shape>"
+                         "<shape type='sphere'><bsdf type='cloth'/></shape></scene>")
+    assert name_xml_cloths(root)
+    assert [b.get("id") for b in root.iter("bsdf")] == ["ball.bsdf", "glaze", None]
+    assert not name_xml_cloths(root)  # nothing left to name
+
+
+def test_loading_two_cloths_labels_each_progress_line_with_its_shape_and_pattern(capfd, tmp_path, monkeypatch):
+    """Mitsuba builds both cloths' tables at once; each progress line is whole and says whose it is."""
+    import re
+
+    from mscloth.loading import load_dict
+
+    monkeypatch.setenv("MSCLOTH_CACHE", str(tmp_path))  # built here, not loaded from the session's cache
+    scene = load_dict({"type": "scene", "floor": {"type": "rectangle", "bsdf": _small_cloth("plain")},
+                       "ball": {"type": "sphere", "bsdf": _small_cloth("twill-2-1")}})
+    assert sorted(shape.bsdf().label for shape in scene.shapes()) == ["ball.bsdf, twill-2-1", "floor.bsdf, plain"]
+    lines = [line for line in capfd.readouterr().err.splitlines() if "mscloth precompute" in line]
+    line = re.compile(r"mscloth precompute \[(floor\.bsdf, plain|ball\.bsdf, twill-2-1)\]: "
+                      r"(?:(?!mscloth precompute).)+")
+    assert lines and all(line.fullmatch(text) for text in lines), lines
+    assert {line.fullmatch(text).group(1) for text in lines if "tables built" in text} == \
+        {"floor.bsdf, plain", "ball.bsdf, twill-2-1"}

@@ -217,6 +217,105 @@ def test_report_references_only_existing_files_and_is_never_half_written(tmp_pat
     assert not [p for p in (tmp_path / "s").iterdir() if p.name.startswith(".")]
 
 
+def test_few_pixels_threshold_gives_a_warning_below_it_only():
+    assert compare.MIN_REGION_PIXELS == 400  # 2/sqrt(N) = 10 % relative standard error of a speed-up
+    assert compare.few_pixels_warning(400) is None and compare.few_pixels_warning(10_000) is None
+    text = compare.few_pixels_warning(100)
+    assert "only 100 pixels" in text and "about 20 %" in text  # 2/sqrt(100)
+    assert "only 399 pixels" in compare.few_pixels_warning(399)
+
+
+def test_terminal_summary_and_report_warn_beside_the_speedup_of_a_small_region(tmp_path):
+    from mscloth import report
+
+    result, images, masks, depth = _synthetic_result()
+    assert [result["regions"]["pixels"][g] for g in REGIONS] == [96, 240, 624]
+    lines = compare.summary_lines(result, 2, 8)
+    rows = {line.split()[0]: line for line in lines[1:4]}
+    assert rows["near"].endswith("!") and rows["middle"].endswith("!") and not rows["far"].endswith("!")
+    assert [line for line in lines if line.startswith("! warning:")] == [
+        f"! warning: near: {compare.few_pixels_warning(96)}", f"! warning: middle: {compare.few_pixels_warning(240)}"]
+    page = report.write_report(tmp_path / "r", result, images, masks, depth).read_text()
+    cells = re.findall(r"<td><b>[0-9.]+x</b>(.*?)</td>", page)
+    assert len(cells) == 3
+    assert "too few pixels (96 &lt; 400): about &plusmn;20 %" in cells[0] and "(240 &lt; 400)" in cells[1]
+    assert "warning" not in cells[2]
+
+
+def _narrow_result():
+    """Curves spanning less than a decade in seconds, relMSE and FLIP, with no power of ten inside."""
+    result, images, masks, depth = _synthetic_result()
+    bf_t, ms_t = [0.2, 0.3, 0.45, 0.6], [0.25, 0.5]
+    bf = [{"spp": 2 ** i, "seconds": t, "compile_seconds": 0.0, "seed": i,
+           "relmse": {g: 0.016 / t for g in REGIONS}, "flip": {g: 0.4 - 0.2 * t for g in REGIONS}}
+          for i, t in enumerate(bf_t)]
+    ms = [{"spp": 2 ** i, "seconds": t, "compile_seconds": 0.0, "seed": i, "relmse": {g: e for g in REGIONS},
+           "flip": {g: f for g in REGIONS}} for i, (t, e, f) in enumerate(zip(ms_t, (0.05, 0.03), (0.3, 0.25)))]
+    figures, _, _ = compare._region_figures(ms, bf, 2, {g: 0.02 for g in REGIONS})
+    result.update(figures)
+    return result
+
+
+def _tick_labels_in_view(axis, lo, hi):
+    """The non-empty labels of the major and minor ticks that are drawn (inside [lo, hi])."""
+    texts = []
+    for locs, formatter in ((axis.get_majorticklocs(), axis.get_major_formatter()),
+                            (axis.get_minorticklocs(), axis.get_minor_formatter())):
+        inside = [v for v in locs if lo * (1 - 1e-9) <= v <= hi * (1 + 1e-9)]
+        texts += [t for t in formatter.format_ticks(inside) if t.strip()]
+    return texts
+
+
+def test_convergence_figure_fits_1200_px_with_a_row_per_region_and_labelled_log_axes():
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from mscloth import report
+
+    for result in (_synthetic_result()[0], _narrow_result()):
+        figure = report.convergence_figure(result)
+        canvas = FigureCanvasAgg(figure)
+        canvas.draw()
+        width, height = canvas.get_width_height()
+        assert width <= 1200 - 48  # inside a 1200-px window less the page's 1.5em margins
+        assert len(figure.axes) == 6
+        for ax in figure.axes:  # all six panels inside the figure, each at least 300 px wide
+            box = ax.get_window_extent()
+            assert box.x0 >= 0 and box.x1 <= width and box.y0 >= 0 and box.y1 <= height and box.width >= 300
+            for axis, (lo, hi) in ((ax.xaxis, ax.get_xlim()), (ax.yaxis, ax.get_ylim())):
+                assert axis.get_scale() == "log"
+                labels = _tick_labels_in_view(axis, lo, hi)
+                assert len(labels) >= 2, (ax.get_title(), axis.axis_name, (lo, hi), labels)
+        rows = sorted({round(ax.get_window_extent().y0) for ax in figure.axes})
+        assert len(rows) == 3  # one row per region
+    # the narrow curves stay inside one decade (0.1 .. 1 s): no power of ten to label
+    lo, hi = report.convergence_figure(_narrow_result()).axes[0].get_xlim()
+    assert 0.1 < lo < hi < 1.0
+
+
+def test_log_ticks_prefer_round_values_and_do_not_crowd():
+    from mscloth.report import log_ticks
+
+    assert log_ticks(0.06, 0.33) == pytest.approx([0.06, 0.1, 0.2, 0.3])  # not 0.06, 0.07, 0.08, 0.09, 0.1, ...
+    assert log_ticks(0.2, 0.7) == pytest.approx([0.2, 0.3, 0.4, 0.5, 0.7])
+    assert log_ticks(1e-4, 1.0) == pytest.approx([1e-4, 1e-3, 1e-2, 1e-1, 1.0])
+    assert log_ticks(0.31, 0.45) == pytest.approx([0.32, 0.36, 0.4, 0.44])  # less than a mantissa step: linear
+
+
+def test_label_log_axis_labels_spans_from_a_fraction_of_a_step_to_many_decades():
+    from matplotlib.figure import Figure
+
+    from mscloth.report import label_log_axis
+
+    for lo, hi in ((0.031, 0.034), (0.31, 0.45), (0.2, 0.7), (0.03, 0.8), (1e-5, 3.0), (1e-9, 1e3)):
+        ax = Figure().add_subplot()
+        ax.set_xscale("log")
+        ax.set_xlim(lo, hi)
+        label_log_axis(ax.xaxis, lo, hi)
+        labels = _tick_labels_in_view(ax.xaxis, lo, hi)
+        assert 2 <= len(labels) <= 12, ((lo, hi), labels)
+        assert all(lo * (1 - 1e-9) <= float(t) <= hi * (1 + 1e-9) for t in labels), labels
+
+
 # ----------------------------------------------------------------------------- end to end
 
 @pytest.fixture(scope="module")
@@ -243,6 +342,11 @@ def test_compare_sphere_writes_json_for_three_regions_and_the_report(compared):
         assert [p["spp"] for p in region["curve_bruteforce"]][:2] == [1, 2]
         assert all(math.isfinite(p["relmse"]) and p["seconds"] > 0 for p in region["curve_multiscale"])
         assert data["regions"]["pixels"][g] > 0
+    # 48x27 holds about a hundred pixels per region: each speed-up is flagged, on the terminal too
+    for g in REGIONS:
+        pixels = data["regions"]["pixels"][g]
+        assert pixels < compare.MIN_REGION_PIXELS and data["regions"]["warnings"][g] == compare.few_pixels_warning(pixels)
+        assert f"! warning: {g}: only {pixels} pixels" in result.stdout
     report = root / "report" / "report.html"
     assert report.is_file()
     for src in _img_sources(report.read_text()):
@@ -274,6 +378,53 @@ def test_report_page_loads_in_headless_chromium(compared, tmp_path):
         assert (report.parent / src).is_file(), src
     for marker in ("Uncaught", "ERROR:CONSOLE"):
         assert marker not in browser.stderr, browser.stderr[-3000:]
+
+
+#: Appended to a copy of the report: once everything has loaded, the page's layout as JSON in <pre id="layout">.
+LAYOUT_PROBE = """<script>
+window.addEventListener("load", () => {
+  const width = document.documentElement.clientWidth;
+  const images = [...document.images];
+  const pre = document.createElement("pre");
+  pre.id = "layout";
+  pre.textContent = JSON.stringify({innerWidth: window.innerWidth, clientWidth: width,
+    scrollWidth: document.documentElement.scrollWidth, images: images.length,
+    unloaded: images.filter(i => !i.complete || i.naturalWidth === 0).map(i => i.getAttribute("src")),
+    overflowing: images.filter(i => i.getBoundingClientRect().right > width + 0.5)
+                       .map(i => i.getAttribute("src") + " ends at " + i.getBoundingClientRect().right)});
+  document.body.appendChild(pre);
+});
+</script>"""
+
+
+def test_report_fits_a_1200_px_window_in_headless_chromium(compared, tmp_path):
+    """At 1200 px wide every image lies inside the window (convergence.png did not: 1350 px
+    of six panels in a row), nothing scrolls sideways, and each speed-up of this small render
+    carries its few-pixels warning."""
+    root, result = compared
+    assert result.returncode == 0, result.stderr[-3000:]
+    chromium = "/usr/bin/chromium" if os.path.exists("/usr/bin/chromium") else shutil.which("chromium")
+    if chromium is None:
+        pytest.fail("chromium is not installed (/usr/bin/chromium): install it with `apt-get install -y chromium` "
+                    "to check the compare report in a browser")
+    probe = tmp_path / "report"
+    shutil.copytree(root / "report", probe)
+    page = (probe / "report.html").read_text()
+    assert "max-width: 100%" in page  # images scale to the page
+    (probe / "report.html").write_text(page.replace("</body>", LAYOUT_PROBE + "</body>"))
+    browser = subprocess.run(
+        [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+         "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={tmp_path / 'profile'}",
+         "--window-size=1200,900", "--virtual-time-budget=10000", "--dump-dom", (probe / "report.html").as_uri()],
+        capture_output=True, text=True, timeout=120)
+    assert browser.returncode == 0, browser.stderr[-3000:]
+    found = re.search(r'<pre id="layout">(.*?)</pre>', browser.stdout)
+    assert found, browser.stdout[-2000:]
+    layout = json.loads(found.group(1).replace("&quot;", '"').replace("&amp;", "&"))
+    assert layout["innerWidth"] == 1200 and layout["images"] >= 17 and not layout["unloaded"], layout
+    assert not layout["overflowing"] and layout["scrollWidth"] <= layout["clientWidth"], layout
+    cells = re.findall(r"<td><b>[0-9.]+x</b>(.*?)</td>", browser.stdout)
+    assert len(cells) == 3 and all(re.search(r"too few pixels \(\d+ &lt; 400\)", c) for c in cells), cells
 
 
 # ----------------------------------------------------------------------------- bad input

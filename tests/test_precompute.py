@@ -914,3 +914,41 @@ def test_jit_sat_queries_match_brute_force_on_wrapping_rectangles():
     np.testing.assert_allclose(packets, singles, rtol=1e-6, atol=1e-4)
     # Both kinds of lanes occurred, and the wrapping ones needed the edge reads.
     assert inside.any() and (~inside).any() and (wx > W).any()
+
+
+class _RecordedWrites:
+    """A stream that keeps every ``write`` call apart, to see how lines were written."""
+
+    def __init__(self):
+        self.writes = []
+
+    def write(self, text):
+        self.writes.append(text)
+        return len(text)
+
+    def flush(self):
+        pass
+
+
+def test_parallel_builds_write_whole_progress_lines_with_their_label(maps_sq, maps_rect, monkeypatch):
+    """Two cloths' tables built at once (as Mitsuba constructs a scene's plugins): every write
+    is one whole progress line carrying its build's label (``print`` wrote the text and its
+    newline apart, and lines carried no label)."""
+    import re
+    import sys
+    from concurrent.futures import ThreadPoolExecutor
+
+    stream = _RecordedWrites()
+    monkeypatch.setattr(sys, "stderr", stream)
+    builds = {"floor.bsdf, plain": maps_sq, "ball.bsdf, twill-2-1": maps_rect}
+    with ThreadPoolExecutor(2) as pool:
+        list(pool.map(lambda item: build_tables(item[1], 0.3, dr=4, dv=2, clusters=2, workers=2,
+                                                label=item[0]), builds.items()))
+    line = re.compile(r"mscloth precompute \[([^\]\n]+)\]: [^\n]+\n")
+    seen = {label: [] for label in builds}
+    for text in stream.writes:
+        match = line.fullmatch(text)
+        assert match and match.group(1) in builds, repr(text)
+        seen[match.group(1)].append(text)
+    for label, lines in seen.items():
+        assert any("visibility (front)" in t for t in lines) and any("tables built" in t for t in lines), lines

@@ -1,4 +1,5 @@
 """Built-in scenes, their XML export, and `mscloth render` / `mscloth scene`."""
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -64,6 +65,10 @@ def test_render_builtin_scene_writes_exr_and_png(tmp_path):
     assert result.returncode == 0, result.stderr
     assert out.stat().st_size > 0 and out.with_suffix(".png").stat().st_size > 0
     assert "M samples/s" in result.stdout
+    # the rate is over the render alone; kernel compilation is reported beside it
+    samples, render_s, compile_s = (float(v) for v in re.search(
+        r"([0-9.]+) M samples/s \(render ([0-9.]+) s, plus ([0-9.]+) s kernel compilation\)", result.stdout).groups())
+    assert compile_s >= 0 and samples == pytest.approx(32 * 18 * 2 / render_s / 1e6, rel=0.05, abs=0.01)
 
 
 def test_scene_command_writes_xml_and_meshes_then_refuses_to_overwrite(tmp_path):

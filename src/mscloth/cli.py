@@ -42,20 +42,20 @@ def cmd_demo(args) -> int:
     import mitsuba as mi
 
     from .loading import load_dict
-    from .render import render_progressive, write_images
+    from .render import KernelCompilation, render_progressive, throughput_text, write_images
     from .scenes.demo import demo_scene
 
     variant = _setup(args.variant)
     out = Path(args.out)
     exr = out / "demo.exr"
     print(f"mscloth demo: {args.res}x{args.res}, {args.spp} spp, variant {variant}")
-    started = time.perf_counter()
     scene = load_dict(demo_scene(resolution=args.res))
-    image = render_progressive(scene, args.spp, label="demo")
+    started = time.perf_counter()
+    with KernelCompilation() as compiling:
+        image = render_progressive(scene, args.spp, label="demo")
     seconds = time.perf_counter() - started
     exr, png = write_images(image, exr)
-    rate = args.res * args.res * args.spp / seconds
-    print(f"wrote {exr} and {png} in {seconds:.1f} s ({rate / 1e6:.2f} M samples/s)")
+    print(f"wrote {exr} and {png}: {throughput_text(args.res * args.res * args.spp, seconds, compiling.seconds)}")
     return 0
 
 
@@ -70,29 +70,32 @@ def _resolution_arg(text: str) -> tuple[int, int]:
 
 
 def _load_scene_file(path: Path, res):
-    """Load a Mitsuba XML scene, overriding its film's width/height when ``res`` is given."""
+    """Load a Mitsuba XML scene, overriding its film's width/height when ``res`` is given and
+    naming its cloths after their shapes (:func:`mscloth.loading.name_xml_cloths`)."""
     import xml.etree.ElementTree as ET
 
     import mitsuba as mi
 
-    from .loading import load_file, unwrap_plugin_error
+    from .loading import load_file, name_xml_cloths, unwrap_plugin_error
     from .scene_checks import warn_about_scene
 
     if not path.is_file():
         raise ClothError(f"scene file {path} does not exist")
     try:
-        if res is None:
-            return load_file(path)  # checked there
         tree = ET.parse(path)
-        films = tree.getroot().findall(".//film")
-        if not films:
-            raise ClothError(f"{path}: no <film> to set --res on")
-        for film in films:
-            for key, value in (("width", res[0]), ("height", res[1])):
-                node = film.find(f"integer[@name='{key}']")
-                if node is None:
-                    node = ET.SubElement(film, "integer", name=key)
-                node.set("value", str(value))
+        named = name_xml_cloths(tree.getroot())
+        if res is None and not named:
+            return load_file(path)  # checked there
+        if res is not None:
+            films = tree.getroot().findall(".//film")
+            if not films:
+                raise ClothError(f"{path}: no <film> to set --res on")
+            for film in films:
+                for key, value in (("width", res[0]), ("height", res[1])):
+                    node = film.find(f"integer[@name='{key}']")
+                    if node is None:
+                        node = ET.SubElement(film, "integer", name=key)
+                    node.set("value", str(value))
         # The scene's directory first while it loads, as mi.load_file does.
         previous = mi.file_resolver()
         resolver = mi.FileResolver(previous)
@@ -118,7 +121,7 @@ def cmd_render(args) -> int:
     import mitsuba as mi
 
     from .loading import load_dict
-    from .render import render_progressive, write_images
+    from .render import KernelCompilation, render_progressive, throughput_text, write_images
     from .scenes.builtin import SCENES, builtin_scene
 
     out = Path(args.out)
@@ -140,10 +143,11 @@ def cmd_render(args) -> int:
     w, h = scene.sensors()[0].film().size()
     print(f"mscloth render: {args.scene}, {w}x{h}, {args.spp} spp, variant {variant}", flush=True)
     started = time.perf_counter()
-    image = render_progressive(scene, args.spp, label="render")
+    with KernelCompilation() as compiling:
+        image = render_progressive(scene, args.spp, label="render")
     seconds = time.perf_counter() - started
     exr, png = write_images(image, out)
-    print(f"wrote {exr} and {png} in {seconds:.1f} s ({w * h * args.spp / seconds / 1e6:.2f} M samples/s)")
+    print(f"wrote {exr} and {png}: {throughput_text(w * h * args.spp, seconds, compiling.seconds)}")
     return 0
 
 

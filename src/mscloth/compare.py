@@ -40,7 +40,9 @@ its chosen spp, read off brute force's relMSE-vs-seconds curve, interpolated lin
 log-log between the two points around the first crossing, divided by multi-scale's
 seconds. When brute force never gets down to that error (or is already below it at its
 first point), the time is extrapolated from its last (first) point with the Monte Carlo
-slope -1 (error ~ 1/time) and flagged ``extrapolated: true``.
+slope -1 (error ~ 1/time) and flagged ``extrapolated: true``. A region of fewer than
+:data:`MIN_REGION_PIXELS` pixels gets a warning beside its speed-up, on the terminal and in
+the report (:func:`few_pixels_warning`).
 """
 from __future__ import annotations
 
@@ -71,6 +73,32 @@ RELMSE_EPS = 1e-2
 REFERENCE_SEEDS = (1_000_000, 2_000_000)
 MULTISCALE_SEED = 10_000
 BRUTEFORCE_SEED = 20_000
+
+
+#: Least pixels in a region for its speed-up to mean something. A region's relMSE is the mean
+#: of N per-pixel squared errors; with Gaussian pixel noise each is a scaled chi-square with
+#: relative standard deviation sqrt(2), so the mean's relative standard error is sqrt(2/N)
+#: (independent pixels; cloth highlights' heavier tails only make it larger). The speed-up is
+#: a ratio of two such estimates (multi-scale's relMSE and brute force's, error ~ 1/time),
+#: so its relative standard error is about sqrt(2/N + 2/N) = 2/sqrt(N): 10 % at 400 pixels.
+SPEEDUP_RELATIVE_ERROR = 0.10
+MIN_REGION_PIXELS = math.ceil((2.0 / SPEEDUP_RELATIVE_ERROR) ** 2)
+
+
+def speedup_relative_error(pixels: int) -> float:
+    """About the relative standard error of a region's speed-up: 2/sqrt(pixels) (see
+    :data:`MIN_REGION_PIXELS`)."""
+    return 2.0 / math.sqrt(max(pixels, 1))
+
+
+def few_pixels_warning(pixels: int) -> str | None:
+    """Why a region of ``pixels`` pixels gives no meaningful speed-up, or None when it has
+    enough (:data:`MIN_REGION_PIXELS`)."""
+    if pixels >= MIN_REGION_PIXELS:
+        return None
+    return (f"only {pixels} pixels (fewer than {MIN_REGION_PIXELS}): its speed-up has a relative standard "
+            f"error of about {100 * speedup_relative_error(pixels):.0f} % (2/sqrt(pixels)); "
+            "render at a larger --res")
 
 
 class ReferenceCacheWarning(UserWarning):
@@ -280,23 +308,16 @@ class Render:
 
 def timed_render(scene, spp: int, seed: int) -> Render:
     """One ``mi.render`` read back to NumPy; time without the kernel compilation it triggered."""
-    import drjit as dr
     import mitsuba as mi
 
+    from .render import KernelCompilation
+
     gc.collect()  # see render.render_progressive: no plugin freed mid-trace
-    dr.sync_thread()
-    had_history = dr.flag(dr.JitFlag.KernelHistory)
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    dr.kernel_history()  # clear
-    try:
+    with KernelCompilation() as compiling:
         start = time.perf_counter()
         image = np.array(mi.render(scene, spp=spp, seed=seed))[..., :3]
         wall = time.perf_counter() - start
-        history = dr.kernel_history()
-    finally:
-        dr.set_flag(dr.JitFlag.KernelHistory, had_history)
-    compile_ms = sum(k.get("codegen_time", 0.0) + k.get("backend_time", 0.0) for k in history)
-    compile_s = min(compile_ms / 1000.0, wall)
+    compile_s = min(compiling.seconds, wall)
     return Render(spp, seed, max(wall - compile_s, 1e-6), compile_s, image.astype(np.float32))
 
 
@@ -501,6 +522,24 @@ def _region_figures(points_ms, points_bf, spp_ms_chosen, floor) -> dict:
     return out, ms_index, bf_index
 
 
+def summary_lines(result: dict, spp_multiscale: int, spp_bruteforce: int) -> list[str]:
+    """The terminal's table of speed-ups and errors per region, with its footnotes: a region
+    with too few pixels (:func:`few_pixels_warning`) is marked ``!`` and warned about."""
+    lines = [f"{'region':8s} {'speed-up':>10s} {'MS relMSE':>10s} {'BF relMSE':>10s} {'MS FLIP':>8s} "
+             f"{'BF FLIP':>8s}   (multi-scale {spp_multiscale} spp vs brute force {spp_bruteforce} spp "
+             "at equal time)"]
+    warnings_ = {g: few_pixels_warning(result["regions"]["pixels"][g]) for g in REGIONS}
+    for g in REGIONS:
+        r = result[g]
+        lines.append(f"{g:8s} {r['speedup']:9.2f}x{'*' if r['extrapolated'] else ' '} {r['relmse_multiscale']:10.3g} "
+                     f"{r['relmse_bruteforce']:10.3g} {r['flip_multiscale']:8.4f} {r['flip_bruteforce']:8.4f}"
+                     + ("  !" if warnings_[g] else ""))
+    if any(result[g]["extrapolated"] for g in REGIONS):
+        lines.append("* extrapolated with error ~ 1/time beyond brute force's measured curve")
+    lines += [f"! warning: {g}: {text}" for g, text in warnings_.items() if text]
+    return lines
+
+
 def run_compare(name: str, width: int, height: int, budget: float = 60.0, reference_spp: int = 1024,
                 out_dir: Path | None = None, json_path: Path | None = None, spp_multiscale: int = 16,
                 quiet: bool = False) -> dict:
@@ -573,7 +612,9 @@ def run_compare(name: str, width: int, height: int, budget: float = 60.0, refere
         **regions,
         "regions": {"method": region_info["method"], "distance_thresholds": region_info["thresholds"],
                     "pixels_used": "the same cloth shape at the pixel centre and its 8 neighbours' (no edges)",
-                    "pixels": {g: int(masks[g].sum()) for g in REGIONS}, "cloth_pixels": int(cloth.sum())},
+                    "pixels": {g: int(masks[g].sum()) for g in REGIONS}, "cloth_pixels": int(cloth.sum()),
+                    "min_pixels": MIN_REGION_PIXELS,
+                    "warnings": {g: few_pixels_warning(int(masks[g].sum())) for g in REGIONS}},
         "metrics": {
             "relmse": f"mean over region pixels and RGB of (img-ref)^2/(ref^2+{RELMSE_EPS:g})",
             "flip": "flip_evaluator LDR-FLIP of sRGB-encoded images clipped to [0,1], mean over region pixels",
@@ -599,15 +640,7 @@ def run_compare(name: str, width: int, height: int, budget: float = 60.0, refere
         atomic_write(json_path, lambda f: f.write(text.encode()))
     result["elapsed_seconds"] = time.perf_counter() - started
     if not quiet:
-        print(f"{'region':8s} {'speed-up':>10s} {'MS relMSE':>10s} {'BF relMSE':>10s} {'MS FLIP':>8s} "
-              f"{'BF FLIP':>8s}   (multi-scale {points_ms[ms_index]['spp']} spp vs brute force "
-              f"{points_bf[bf_index]['spp']} spp at equal time)")
-        for g in REGIONS:
-            r = result[g]
-            print(f"{g:8s} {r['speedup']:9.2f}x{'*' if r['extrapolated'] else ' '} {r['relmse_multiscale']:10.3g} "
-                  f"{r['relmse_bruteforce']:10.3g} {r['flip_multiscale']:8.4f} {r['flip_bruteforce']:8.4f}")
-        if any(result[g]["extrapolated"] for g in REGIONS):
-            print("* extrapolated with error ~ 1/time beyond brute force's measured curve")
+        print("\n".join(summary_lines(result, points_ms[ms_index]["spp"], points_bf[bf_index]["spp"])))
         print(f"wrote {report}" + (f" and {json_path}" if json_path else "")
               + f" in {result['elapsed_seconds']:.1f} s")
     return result

@@ -27,11 +27,67 @@ def unwrap_plugin_error(error: RuntimeError) -> Exception:
     return error
 
 
+def _ids_in(node, found: set) -> set:
+    if isinstance(node, dict):
+        if isinstance(node.get("id"), str):
+            found.add(node["id"])
+        for child in node.values():
+            _ids_in(child, found)
+    return found
+
+
+def name_cloths(scene: dict) -> dict:
+    """``scene`` with each nested ``cloth`` BSDF that has no ``id`` given its node path as one
+    (``floor.bsdf`` inside shape ``floor``), so that its progress lines and warnings say which
+    shape it is on (Mitsuba names a nested plugin just ``bsdf``). Ids already in use are
+    left alone. Copies only the dictionaries it changes; anything but a scene is returned as is.
+    """
+    if not isinstance(scene, dict) or scene.get("type") != "scene":
+        return scene
+    taken = set(scene) | _ids_in(scene, set())
+
+    def visit(node: dict, path: str) -> dict:
+        changed = {}
+        for key, child in node.items():
+            if isinstance(child, dict) and key != "type":
+                named = visit(child, f"{path}.{key}")
+                if named.get("type") == "cloth" and "id" not in named and f"{path}.{key}" not in taken:
+                    named = dict(named, id=f"{path}.{key}")
+                    taken.add(named["id"])
+                if named is not child:
+                    changed[key] = named
+        return dict(node, **changed) if changed else node
+
+    changed = {key: visit(node, key) for key, node in scene.items() if isinstance(node, dict)}
+    changed = {key: node for key, node in changed.items() if node is not scene[key]}
+    return dict(scene, **changed) if changed else scene
+
+
+def name_xml_cloths(root) -> bool:
+    """:func:`name_cloths` for a parsed XML scene (an ElementTree root): each ``cloth``
+    ``<bsdf>`` without an id inside a ``<shape id="floor">`` gets ``id="floor.bsdf"``.
+    Returns whether it changed anything."""
+    taken = {e.get("id") for e in root.iter() if e.get("id")}
+    changed = False
+    for shape in root.iter("shape"):
+        name = f"{shape.get('id')}.bsdf"
+        if not shape.get("id") or name in taken:
+            continue
+        for bsdf in shape.iter("bsdf"):
+            if bsdf.get("type") == "cloth" and not bsdf.get("id"):
+                bsdf.set("id", name)
+                taken.add(name)
+                changed = True
+                break
+    return changed
+
+
 def load_dict(scene: dict):
-    """``mi.load_dict`` raising mscloth's own error class for bad cloth input; a scene is
-    then checked (warnings, :mod:`.scene_checks`)."""
+    """``mi.load_dict`` raising mscloth's own error class for bad cloth input; nested cloths
+    are named after their shapes first (:func:`name_cloths`), and the scene is then checked
+    (warnings, :mod:`.scene_checks`)."""
     try:
-        loaded = mi.load_dict(scene)
+        loaded = mi.load_dict(name_cloths(scene))
     except RuntimeError as error:
         unwrapped = unwrap_plugin_error(error)
         if unwrapped is error:

@@ -25,6 +25,40 @@ def progress_bar(done: int, total: int, started: float, label: str, stream=sys.s
     stream.flush()
 
 
+class KernelCompilation:
+    """``with KernelCompilation() as compiling:`` -- ``compiling.seconds``: the time Dr.Jit
+    spent compiling kernels (code generation + backend, from its kernel history) in the block.
+
+    Each new kernel costs seconds to compile (the multi-scale cloth's, several), once per
+    process and kernel; it does not grow with the samples, so rates leave it out.
+    """
+
+    def __enter__(self) -> "KernelCompilation":
+        dr.sync_thread()
+        self.seconds = 0.0
+        self._had_history = dr.flag(dr.JitFlag.KernelHistory)
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
+        dr.kernel_history()  # clear
+        return self
+
+    def __exit__(self, *exc) -> None:
+        try:
+            dr.sync_thread()
+            history = dr.kernel_history()
+        finally:
+            dr.set_flag(dr.JitFlag.KernelHistory, self._had_history)
+        self.seconds = sum(k.get("codegen_time", 0.0) + k.get("backend_time", 0.0) for k in history) / 1000.0
+
+
+def throughput_text(samples: int, seconds: float, compile_seconds: float) -> str:
+    """``"2.00 M samples/s (render 1.50 s, plus 3.0 s kernel compilation)"``: ``samples`` over
+    the ``seconds`` taken less the kernel compilation among them (:class:`KernelCompilation`)."""
+    compile_seconds = min(max(compile_seconds, 0.0), seconds)
+    render = seconds - compile_seconds
+    rate = f"{samples / render / 1e6:.2f} M samples/s" if render > 0 else "rate not measurable"
+    return f"{rate} (render {render:.2f} s, plus {compile_seconds:.1f} s kernel compilation)"
+
+
 def render_progressive(scene, spp: int, passes: int | None = None, seed: int = 0,
                        label: str = "render", quiet: bool = False):
     """Render ``spp`` samples per pixel in passes (showing progress); return the mean image.

@@ -8,13 +8,15 @@ from __future__ import annotations
 
 import html
 import io
+import math
 import time
 from pathlib import Path
 
 import numpy as np
 
 from .atomic import atomic_path, atomic_write
-from .compare import REGIONS, relmse_map, to_srgb8
+from .compare import (MIN_REGION_PIXELS, REGIONS, few_pixels_warning, relmse_map, speedup_relative_error,
+                      to_srgb8)
 
 REGION_COLOURS = {"near": (0.90, 0.25, 0.20), "middle": (0.20, 0.75, 0.30), "far": (0.25, 0.45, 0.95)}
 METHOD_LABELS = {"reference": "reference (brute force)", "multiscale": "multi-scale",
@@ -31,7 +33,7 @@ def _save_png(path: Path, rgb01: np.ndarray) -> None:
 
 def _save_figure(path: Path, figure) -> None:
     buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=100)
+    figure.savefig(buffer, format="png", dpi=FIGURE_DPI)
     atomic_write(path, lambda f: f.write(buffer.getvalue()))
 
 
@@ -84,15 +86,78 @@ def _heat_maps(out: Path, images: dict, files: dict, cloth: np.ndarray) -> dict:
     return files
 
 
-def _convergence_plot(out: Path, result: dict) -> str:
-    from matplotlib.figure import Figure
-    from matplotlib.ticker import NullFormatter
+#: Resolution of the plots (pixels per inch of figsize).
+FIGURE_DPI = 100
+#: Width of the convergence figure in pixels: inside a 1200-pixel-wide window less the
+#: page's margins, so it is shown at its own size there (the page scales it down in narrower
+#: ones, see ``img`` in the style sheet).
+CONVERGENCE_WIDTH_PX = 1100
+#: Height of one row of panels (one region: relMSE and FLIP side by side), in pixels.
+CONVERGENCE_ROW_PX = 340
 
-    figure = Figure(figsize=(13.5, 7.5), layout="constrained")
-    axes = figure.subplots(2, 3, squeeze=False)
-    for col, g in enumerate(REGIONS):
+
+def _tick_label(value, _position=None) -> str:
+    return f"{value:.3g}"
+
+
+#: Rank of each mantissa of log-axis ticks, roundest first (see :func:`log_ticks`).
+_MANTISSA_RANK = {1: 0, 2: 1, 5: 1, 3: 2, 4: 2, 6: 3, 7: 3, 8: 3, 9: 3}
+#: Labelled ticks on a log axis stay at least this fraction of its span apart (at most ~7).
+_TICK_SPACING = 1.0 / 6.0
+
+
+def log_ticks(lo: float, hi: float) -> list[float]:
+    """Major ticks for a log axis showing [lo, hi] (0 < lo < hi), however short the span.
+
+    Matplotlib labels the powers of ten, and an axis spanning less than a decade may hold
+    none. Here: every m x 10^k (m = 1..9) inside, taken roundest first (1, then 2 and 5, then
+    the rest) while it stays :data:`_TICK_SPACING` of the span (in log) from those taken; when
+    that gives fewer than three, round numbers in linear steps if they give more (a span
+    of less than a mantissa step)."""
+    from matplotlib.ticker import MaxNLocator
+
+    lo, hi = min(lo, hi), max(lo, hi)
+    span = math.log10(hi / lo)
+    candidates = []
+    for k in range(math.floor(math.log10(lo)), math.ceil(math.log10(hi)) + 1):
+        candidates += [(rank, m * 10.0 ** k) for m, rank in _MANTISSA_RANK.items()
+                       if lo * (1 - 1e-9) <= m * 10.0 ** k <= hi * (1 + 1e-9)]
+    taken = []
+    for _, t in sorted(candidates):
+        if all(abs(math.log10(t / u)) >= _TICK_SPACING * span for u in taken):
+            taken.append(t)
+    if len(taken) < 3:
+        linear = [t for t in MaxNLocator(nbins=4).tick_values(lo, hi) if lo <= t <= hi and t > 0]
+        if len(linear) > len(taken):
+            taken = linear
+    return sorted(taken)
+
+
+def label_log_axis(axis, lo: float, hi: float) -> None:
+    """Labelled major ticks (:func:`log_ticks`) on a log ``axis`` showing [lo, hi]; minor
+    ticks stay, unlabelled."""
+    from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, NullFormatter
+
+    axis.set_major_locator(FixedLocator(log_ticks(lo, hi)))
+    axis.set_major_formatter(FuncFormatter(_tick_label))
+    axis.set_minor_locator(LogLocator(base=10.0, subs="auto", numticks=10))
+    axis.set_minor_formatter(NullFormatter())
+
+
+def convergence_figure(result: dict):
+    """Error against seconds, per region: one row per region, relMSE left and FLIP right (a
+    row of six panels did not fit a browser window). Log axes with labelled ticks
+    (:func:`label_log_axis`); a region with too few pixels says so in red in its title."""
+    from matplotlib.figure import Figure
+
+    rows, cols = len(REGIONS), 2
+    figure = Figure(figsize=(CONVERGENCE_WIDTH_PX / FIGURE_DPI, rows * CONVERGENCE_ROW_PX / FIGURE_DPI),
+                    dpi=FIGURE_DPI, layout="constrained")
+    axes = figure.subplots(rows, cols, squeeze=False)
+    for row, g in enumerate(REGIONS):
         r = result[g]
-        for row, metric in enumerate(("relmse", "flip")):
+        warning = few_pixels_warning(result["regions"]["pixels"][g])
+        for col, metric in enumerate(("relmse", "flip")):
             ax = axes[row][col]
             for key, label, style in (("curve_bruteforce", "brute force", "o-"),
                                       ("curve_multiscale", "multi-scale", "s-")):
@@ -100,9 +165,10 @@ def _convergence_plot(out: Path, result: dict) -> str:
                 ax.plot([p["seconds"] for p in curve], [p[metric] for p in curve], style, label=label, ms=4)
                 for p in curve:
                     ax.annotate(str(p["spp"]), (p["seconds"], p[metric]), textcoords="offset points",
-                                xytext=(3, 3), fontsize=6, alpha=0.7)
+                                xytext=(3, 3), fontsize=7, alpha=0.7)
             ax.plot([r["seconds_multiscale"]], [r[f"{metric}_multiscale"]], "*", ms=14, color="C1",
                     label=f"multi-scale, {r['spp_multiscale']} spp")
+            title = f"{g}: " + ("relMSE" if metric == "relmse" else "FLIP")
             if metric == "relmse":
                 target = r["relmse_multiscale"]
                 ax.axhline(target, color="C1", ls="--", lw=0.8)
@@ -111,18 +177,29 @@ def _convergence_plot(out: Path, result: dict) -> str:
                         label="brute force, equal error" + (" (extrapolated)" if r["extrapolated"] else ""))
                 if r["relmse_reference"] > 0:
                     ax.axhline(r["relmse_reference"], color="grey", ls=":", lw=0.8, label="reference noise")
-                ax.set_title(f"{g}: speed-up {r['speedup']:.2f}x" + (" (extrapolated)" if r["extrapolated"] else ""))
-            values = [p[metric] for k in ("curve_bruteforce", "curve_multiscale") for p in r[k]]
+                title = f"{g}: speed-up {r['speedup']:.2f}x" + (" (extrapolated)" if r["extrapolated"] else "")
+            if warning:
+                pixels = result["regions"]["pixels"][g]
+                title += f"\n! too few pixels ({pixels}): about \u00b1{100 * speedup_relative_error(pixels):.0f} %"
+            ax.set_title(title, fontsize=10, color="#b00000" if warning else "black")
             ax.set_xscale("log")
-            ax.xaxis.set_minor_formatter(NullFormatter())
+            values = [p[metric] for k in ("curve_bruteforce", "curve_multiscale") for p in r[k]]
             if min(values) > 0:
                 ax.set_yscale("log")
             ax.set_xlabel("seconds (without kernel compilation)")
             ax.set_ylabel("relMSE" if metric == "relmse" else "FLIP (LDR)")
             ax.grid(True, which="both", alpha=0.3)
-            if col == 0:
+            if row == 0:
                 ax.legend(fontsize=7)
-    _save_figure(out / "convergence.png", figure)
+    for ax in figure.axes:  # the limits are final once everything is plotted
+        label_log_axis(ax.xaxis, *ax.get_xlim())
+        if ax.get_yscale() == "log":
+            label_log_axis(ax.yaxis, *ax.get_ylim())
+    return figure
+
+
+def _convergence_plot(out: Path, result: dict) -> str:
+    _save_figure(out / "convergence.png", convergence_figure(result))
     return "convergence.png"
 
 
@@ -168,18 +245,24 @@ def write_report(out_dir, result: dict, images: dict, masks: dict, depth: np.nda
     display_w = max(w, min(480, 4 * w))
     esc = html.escape
 
-    def img_tag(name, alt, width=None):
+    def img_tag(name, alt, width=None, css_class=None):
         width = f' width="{width}"' if width else ""
-        return f'<img src="{esc(files[name])}" alt="{esc(alt)}"{width}>'
+        css_class = f' class="{css_class}"' if css_class else ""
+        return f'<img src="{esc(files[name])}" alt="{esc(alt)}"{width}{css_class}>'
 
     rows = []
     for g in REGIONS:
         r = result[g]
+        pixels = result["regions"]["pixels"][g]
+        warning = few_pixels_warning(pixels)
+        warning = (f'<br><span class="warning" title="{esc(warning)}">&#9888; too few pixels ({pixels} &lt; '
+                   f'{MIN_REGION_PIXELS}): about &plusmn;{100 * speedup_relative_error(pixels):.0f} %</span>'
+                   if warning else "")
         rows.append(
             "<tr>" + "".join(f"<td>{c}</td>" for c in (
                 f'<span class="swatch" style="background:rgb{tuple(int(255 * c) for c in REGION_COLOURS[g])}"></span>{g}',
                 result["regions"]["pixels"][g],
-                f"<b>{r['speedup']:.2f}x</b>" + (" (extrapolated)" if r["extrapolated"] else ""),
+                f"<b>{r['speedup']:.2f}x</b>" + (" (extrapolated)" if r["extrapolated"] else "") + warning,
                 r["spp_multiscale"], _fmt(r["seconds_multiscale"]), _fmt(r["relmse_multiscale"]),
                 _fmt(r["flip_multiscale"]),
                 r["spp_bruteforce"], _fmt(r["seconds_bruteforce"]), _fmt(r["relmse_bruteforce"]),
@@ -206,7 +289,10 @@ def write_report(out_dir, result: dict, images: dict, masks: dict, depth: np.nda
 <title>mscloth compare: {esc(result['scene'])}</title>
 <style>
 body {{ font-family: sans-serif; margin: 1.5em; color: #222; }}
-img {{ image-rendering: pixelated; }}
+img {{ image-rendering: pixelated; max-width: 100%; height: auto; }}
+img.plot {{ image-rendering: auto; }}
+.wide {{ max-width: 100%; overflow-x: auto; }}
+.warning {{ color: #b00000; font-size: 0.85em; display: inline-block; max-width: 16em; text-align: left; }}
 figure {{ display: inline-block; margin: 0 1em 1em 0; vertical-align: top; }}
 table {{ border-collapse: collapse; }}
 td, th {{ border: 1px solid #ccc; padding: 0.25em 0.5em; text-align: right; }}
@@ -222,21 +308,22 @@ td, th {{ border: 1px solid #ccc; padding: 0.25em 0.5em; text-align: right; }}
 mscloth {esc(result['mscloth_version'])}; {esc(result['machine'])}; {time.strftime('%Y-%m-%d %H:%M')}.</p>
 
 <h2>Figures per region</h2>
-<table>
+<div class="wide"><table>
 <tr><th>region</th><th>pixels</th><th>speed-up at equal error</th>
 <th>MS spp</th><th>MS s</th><th>MS relMSE</th><th>MS FLIP</th>
 <th>BF spp (equal time)</th><th>BF s</th><th>BF relMSE</th><th>BF FLIP</th>
 <th>BF s to MS error</th><th>BF spp to MS error</th><th>BF relMSE at MS spp</th>
 <th>reference noise relMSE</th></tr>
 {''.join(rows)}
-</table>
+</table></div>
 <p class="note">MS = multi-scale <code>cloth</code>, BF = brute force (the same scene with
 <code>"multiscale": false</code>: fibre-level shading, supersampled). relMSE: {esc(metrics['relmse'])}.
 FLIP: {esc(metrics['flip'])}. Seconds: {esc(metrics['seconds'])}. Speed-up: {esc(metrics['speedup'])}.
 Regions: pixels whose centre and 8 neighbours' centres see the same cloth shape (pixels on
 silhouettes and seams carry the edge's anti-aliasing noise, the same for both methods), split by camera
 distance ({esc(result['regions']['method'])};
-thresholds {thresholds[0]:.3g} and {thresholds[1]:.3g} scene units).
+thresholds {thresholds[0]:.3g} and {thresholds[1]:.3g} scene units). A region of fewer than
+{MIN_REGION_PIXELS} pixels is flagged: its speed-up's relative standard error is about 2/sqrt(pixels).
 Kernel compilation (excluded): multi-scale {result['compile_seconds']['multiscale']:.1f} s,
 brute force {result['compile_seconds']['bruteforce']:.1f} s.</p>
 
@@ -254,11 +341,11 @@ far (blue), boxes: the insets</figcaption></figure>
 <h2>Error heat maps</h2>
 <figure>{img_tag('heat_multiscale', 'multi-scale error', display_w)}<figcaption>multi-scale</figcaption></figure>
 <figure>{img_tag('heat_bruteforce', 'brute-force error', display_w)}<figcaption>brute force, equal time</figcaption></figure>
-<br>{img_tag('heat_colorbar', 'colour scale')}
+<br>{img_tag('heat_colorbar', 'colour scale', css_class='plot')}
 
 <h2>Convergence</h2>
-{img_tag('convergence', 'error vs seconds, per region')}
-<p class="note">Log-log error against render seconds; numbers next to the points are spp.
+{img_tag('convergence', 'error vs seconds, per region', css_class='plot')}
+<p class="note">Log-log error against render seconds, one row per region; numbers next to the points are spp.
 Star: the multi-scale image in the table; diamond: where brute force reaches its relMSE
 (hollow: extrapolated with error ~ 1/time).</p>
 </body>

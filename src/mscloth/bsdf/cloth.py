@@ -7,6 +7,8 @@ Plugin classes bind to the Mitsuba variant active when they are defined, so
 """
 from __future__ import annotations
 
+import itertools
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
@@ -20,6 +22,22 @@ from .lobe_calibration import calibrate
 from .lobes import (DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN,
                     SPECULAR_REFLECTION, SPECULAR_TRANSMISSION, with_yarn_albedo)
 from .parameters import FLOAT_PARAMETERS, SPECTRUM_PARAMETERS, cloth_maps, read_parameters, uv_scales
+
+
+#: Numbers cloths that have no id of their own, so that their progress lines differ.
+_unnamed_cloths = itertools.count(1)
+
+
+def cloth_label(plugin_id: str, pattern: str) -> str:
+    """``"<id>, <pattern>"``: which cloth a progress line or warning is about.
+
+    The id is the plugin's (``floor.bsdf`` for a cloth nested in shape ``floor`` when loaded
+    through :func:`mscloth.loading.load_dict`, which names them); a cloth without one, or
+    with Mitsuba's generic ``bsdf``, gets ``cloth <n>``. A pattern given as a path (a maps
+    directory, a .wif file) is shown by its last component."""
+    name = plugin_id if plugin_id and plugin_id != "bsdf" else f"cloth {next(_unnamed_cloths)}"
+    shown = pattern.replace("\\", "/").rstrip("/").rsplit("/", 1)[-1] or pattern
+    return f"{name}, {shown}"
 
 
 DOCSTRING = r"""
@@ -222,6 +240,7 @@ def make_cloth_class():
             maps = cloth_maps(p)
             mi.BSDF.__init__(self, props)
             self.pattern = p.fabric if not p.pattern_given else p.pattern
+            self.label = cloth_label(props.id(), self.pattern)
             self.maps = maps
             self._pinned = []
             uv_scale, uv_scale_v = uv_scales(p, maps)
@@ -239,7 +258,7 @@ def make_cloth_class():
             self.use_visibility = p.visibility
             self.use_parallax = p.parallax
             if p.footprint_slices != 1:
-                mi.Log(mi.LogLevel.Warn, f"cloth ({p.pattern}): footprint_slices is no longer used: footprints are "
+                mi.Log(mi.LogLevel.Warn, f"cloth [{self.label}]: footprint_slices is no longer used: footprints are "
                                          "shaded as the pixel's parallelogram (one probe per sample)")
             self.footprint_data = None
             self.direction_rank = p.direction_rank  # the rank built (see max_table_mib)
@@ -249,11 +268,11 @@ def make_cloth_class():
                 rank, why = choose_direction_rank(*self.maps.resolution, p.direction_bins, p.direction_rank,
                                                   p.max_table_mib)
                 if why and p.multiscale:
-                    mi.Log(mi.LogLevel.Warn, f"cloth ({p.pattern}): {why}")
+                    mi.Log(mi.LogLevel.Warn, f"cloth [{self.label}]: {why}")
                 self.direction_rank = rank
                 tables = load_or_build(self.maps, p.roughness, dr=p.direction_bins, dv=p.visibility_bins,
                                        clusters=p.clusters, per_cluster_sat=p.unbiased_ccv,
-                                       d_rank=rank, parallax=p.parallax)
+                                       d_rank=rank, parallax=p.parallax, label=self.label)
                 self.footprint_data = FootprintData(tables, with_sats=p.multiscale, with_parallax=p.parallax)
             # The footprint BSDF; before calibration, which samples it.
             self.estimator = FootprintEstimator(self) if p.multiscale else None

@@ -3,23 +3,40 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 
-class Progress:
-    """Progress lines on stderr: ``mscloth precompute: <what> <done>/<total> <unit>``.
+#: Held while one progress line is written. Mitsuba constructs a scene's plugins on parallel
+#: threads, so the tables of several cloths are built at once; ``print`` writes the text and
+#: its newline separately, and two builds' lines ran into one another.
+_LINE_LOCK = threading.Lock()
 
+
+def write_line(stream, text: str) -> None:
+    """Write ``text`` and its newline to ``stream`` in one call, under :data:`_LINE_LOCK`."""
+    with _LINE_LOCK:
+        stream.write(text + "\n")
+        stream.flush()
+
+
+class Progress:
+    """Progress lines on stderr: ``mscloth precompute [<label>]: <what> <done>/<total> <unit>``.
+
+    ``label`` names whose tables these are (a cloth's id and pattern); every line carries it,
+    and each is written whole (:func:`write_line`), so parallel builds can be told apart.
     At most one line every ``interval`` seconds (plus the last one), so logs stay short.
     ``enabled=False`` prints nothing.
     """
 
-    def __init__(self, enabled: bool = True, interval: float = 1.0, stream=None):
+    def __init__(self, enabled: bool = True, interval: float = 1.0, stream=None, label: str = ""):
         self.enabled = bool(enabled)
         self.interval = interval
         self.stream = stream
+        self.prefix = f"mscloth precompute [{label}]: " if label else "mscloth precompute: "
         self._last = 0.0
 
     def __call__(self, what: str, done: int, total: int, unit: str = "") -> None:
@@ -29,14 +46,15 @@ class Progress:
         if done < total and done > 1 and now - self._last < self.interval:
             return
         self._last = now
-        stream = self.stream if self.stream is not None else sys.stderr
-        print(f"mscloth precompute: {what} {done}/{total}{' ' + unit if unit else ''}",
-              file=stream, flush=True)
+        self._write(f"{what} {done}/{total}{' ' + unit if unit else ''}")
 
     def note(self, text: str) -> None:
         if self.enabled:
-            stream = self.stream if self.stream is not None else sys.stderr
-            print(f"mscloth precompute: {text}", file=stream, flush=True)
+            self._write(text)
+
+    def _write(self, text: str) -> None:
+        # sys.stderr looked up per line: tests and callers may redirect it after construction.
+        write_line(self.stream if self.stream is not None else sys.stderr, self.prefix + text)
 
 
 def default_workers() -> int:

@@ -294,7 +294,7 @@ def build_tables(maps, roughness, dr: int = 16, dv: int = 8, clusters: int = 8,
                  per_cluster_sat: bool = False, progress: bool = True, *, seed: int = 0,
                  iters: int = 30, max_step: float = 0.5, vis_eps: float = 1e-4,
                  fast_visibility: bool = True, d_rank: int = 0, parallax: bool = False,
-                 workers: int | None = None) -> MultiscaleTables:
+                 workers: int | None = None, label: str = "") -> MultiscaleTables:
     """Build every table of :class:`MultiscaleTables` for ``maps`` (a ClothMaps).
 
     roughness: fibre SGGX alpha in (0, 1]. dr: h bins per side of the directional SAT.
@@ -310,12 +310,13 @@ def build_tables(maps, roughness, dr: int = 16, dv: int = 8, clusters: int = 8,
     :func:`_d_basis`).
     parallax: also build the parallax table (a quarter of the build time and, at dr = 32, more
     memory than everything but the directional SAT; only the ``parallax`` option reads it).
-    workers: threads (default: CPUs, <= 8).
+    workers: threads (default: CPUs, <= 8). label: whose tables these are (e.g. a cloth's id
+    and pattern), at the start of every progress line.
     """
     params = _params(roughness, dr, dv, clusters, per_cluster_sat, seed, iters, max_step,
                      vis_eps, fast_visibility, d_rank, parallax)
     key = table_key(maps, params)
-    prog = Progress(progress)
+    prog = Progress(progress, label=label)
     t_start = time.perf_counter()
     H, W = (int(s) for s in maps.tangent.shape[:2])
     N = H * W
@@ -626,11 +627,12 @@ def load_or_build(maps, roughness, cache_dir=None, **kw) -> MultiscaleTables:
     Any problem with a cached file (missing sidecar, truncated or corrupt .npz, checksum or
     shape mismatch) gives a warning naming the file, and the tables are rebuilt and rewritten;
     a bad cache is never used. If the cache cannot be written the tables are still returned
-    (with a warning).
+    (with a warning). ``progress``, ``workers`` and ``label`` go to :func:`build_tables`.
     """
     build_kw = dict(kw)
     progress = build_kw.pop("progress", True)
     workers = build_kw.pop("workers", None)
+    label = build_kw.pop("label", "")
     params = _params(roughness, **build_kw)
     key = table_key(maps, params)
     cache_dir = default_cache_dir() if cache_dir is None else Path(cache_dir)
@@ -644,7 +646,7 @@ def load_or_build(maps, roughness, cache_dir=None, **kw) -> MultiscaleTables:
         except _BadCache as bad:
             warnings.warn(f"mscloth: ignoring cached tables {bad.path}: {bad.reason}; "
                           "rebuilding", RuntimeWarning, stacklevel=2)
-    tables = build_tables(maps, roughness, progress=progress, workers=workers, **build_kw)
+    tables = build_tables(maps, roughness, progress=progress, workers=workers, label=label, **build_kw)
     try:
         save_tables(tables, cache_dir)
     except OSError as exc:
