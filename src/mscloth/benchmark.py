@@ -58,7 +58,7 @@ def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple]:
     import mitsuba as mi
 
     from .loading import load_dict
-    from .scenes.demo import demo_scene
+    from .scenes.demo import cost_scene
 
     # A dict with "type": the BSDF on both shapes; without: parameters changed on the cloth.
     contenders = {
@@ -76,7 +76,7 @@ def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple]:
     }
     scenes = {}
     for name, bsdf in contenders.items():
-        scene_dict = demo_scene(resolution=resolution)  # fresh dict: transforms do not deepcopy
+        scene_dict = cost_scene(resolution=resolution)  # fresh dict: transforms do not deepcopy
         bsdf = dict(bsdf)
         scene_dict["integrator"].update(bsdf.pop("integrator", {}))
         for shape in ("plane", "ball"):
@@ -139,9 +139,9 @@ def bench_bsdf_calls(lanes: int = 1 << 21, repeats: int = 7) -> list[tuple[str, 
 
     from .integrators.clothpath import eval_pdf_sample_n
     from .jit_arrays import lane_values
-    from .scenes.demo import demo_scene
+    from .scenes.demo import cost_scene
 
-    cloth = demo_scene(resolution=32)["ball"]["bsdf"]
+    cloth = cost_scene(resolution=32)["ball"]["bsdf"]
     bsdfs = {
         "cloth (mscloth, multi-scale)": mi.load_dict(cloth),
         "cloth (mscloth, fibre-level)": mi.load_dict(dict(cloth, multiscale=False)),

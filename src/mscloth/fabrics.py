@@ -263,10 +263,10 @@ FABRICS: dict[str, Fabric] = {f.name: f for f in (
         name="denim", title="Denim", structure="woven", pattern="twill-3-1-Z",
         ends_per_cm=28, picks_per_cm=18, yarn_diameter_mm=(0.40, 0.45),
         fibre_twist_deg=-30.0, inclination_deg=12.0,
-        warp_color=(0.10, 0.16, 0.36), weft_color=(0.88, 0.84, 0.74),
+        warp_color=(0.13, 0.22, 0.47), weft_color=(0.78, 0.74, 0.64),
         roughness=0.4, thickness=2.0, specular_albedo=0.3, specular_transmittance=0.05,
         diffuse_albedo=0.6, diffuse_transmittance=0.02,
-        sheen_color=(0.8, 0.82, 0.9), sheen_roughness=0.6, sheen_thickness=0.25,
+        sheen_color=(0.45, 0.55, 0.8), sheen_roughness=0.6, sheen_thickness=0.15,
         source="3/1 right-hand (Z) warp-faced twill, indigo warp and ecru weft, ~70 x 46 "
                "threads/inch (12-14 oz); twist -30 degrees and warp/weft inclination 12/38 "
                "degrees from Irawan & Marschner 2012's denim",
@@ -285,7 +285,7 @@ FABRICS: dict[str, Fabric] = {f.name: f for f in (
         look="a steep, fine twill line and a soft sheen"),
     Fabric(
         name="linen", title="Linen", structure="woven", pattern="plain", repeat=8, texels_per_thread=8,
-        ends_per_cm=20, picks_per_cm=20, yarn_diameter_mm=(0.42, 0.42), slub=0.35,
+        ends_per_cm=20, picks_per_cm=20, yarn_diameter_mm=(0.47, 0.47), slub=0.2,
         fibre_twist_deg=-15.0, inclination_deg=28.0,
         warp_color=(0.78, 0.72, 0.60), weft_color=(0.74, 0.68, 0.56),
         roughness=0.35, thickness=2.0, specular_albedo=0.25, specular_transmittance=0.1,
@@ -297,7 +297,7 @@ FABRICS: dict[str, Fabric] = {f.name: f for f in (
     Fabric(
         name="silk-shantung", title="Silk shantung", structure="woven", pattern="plain", repeat=8,
         texels_per_thread=8,
-        ends_per_cm=60, picks_per_cm=26, yarn_diameter_mm=(0.16, 0.38), slub=0.4,
+        ends_per_cm=60, picks_per_cm=26, yarn_diameter_mm=(0.17, 0.4), slub=0.25,
         fibre_twist_deg=0.0, inclination_deg=23.0, profile_exponent=3.0,
         warp_color=(0.62, 0.08, 0.12), weft_color=(0.85, 0.55, 0.12),
         roughness=0.15, thickness=3.0, specular_albedo=0.7, specular_transmittance=0.08,
@@ -325,7 +325,7 @@ FABRICS: dict[str, Fabric] = {f.name: f for f in (
         warp_color=(0.45, 0.47, 0.50), weft_color=(0.45, 0.47, 0.50),
         roughness=0.5, thickness=2.0, specular_albedo=0.2, specular_transmittance=0.1,
         diffuse_albedo=0.6, diffuse_transmittance=0.1,
-        sheen_color=(0.8, 0.8, 0.8), sheen_roughness=0.6, sheen_thickness=0.6,
+        sheen_color=(0.8, 0.8, 0.8), sheen_roughness=0.6, sheen_thickness=0.3,
         source="single jersey of ring-spun cotton (T-shirt), ~36 wales x 46 courses per inch",
         look="rows of small V-shaped loops, matte with a soft fuzzy sheen at grazing angles"),
     Fabric(
@@ -335,7 +335,7 @@ FABRICS: dict[str, Fabric] = {f.name: f for f in (
         warp_color=(0.45, 0.08, 0.10), weft_color=(0.45, 0.08, 0.10),
         roughness=0.55, thickness=2.5, specular_albedo=0.15, specular_transmittance=0.05,
         diffuse_albedo=0.65, diffuse_transmittance=0.05,
-        sheen_color=(0.85, 0.6, 0.6), sheen_roughness=0.7, sheen_thickness=1.2,
+        sheen_color=(0.85, 0.6, 0.6), sheen_roughness=0.7, sheen_thickness=0.5,
         source="2x2 rib knit of worsted-weight wool (sweater cuffs), ~15 wales x 18 courses per inch",
         look="raised vertical ribs and a strong fuzzy rim where the cloth turns away"),
 )}

@@ -61,6 +61,12 @@ back side sees the same maps mirrored through the surface.
      - Type
      - Default
      - Meaning
+   * - fabric
+     - string
+     - none
+     - A fabric preset (:mod:`mscloth.fabrics`, ``mscloth fabrics``): its maps at the
+       true thread count and defaults for every parameter below, which still override
+       it; UVs are then read in metres (``uv_unit`` 1).
    * - pattern
      - string
      - ``plain``
@@ -77,6 +83,11 @@ back side sees the same maps mirrored through the surface.
      - 1.0
      - Pattern tiles per UV unit, > 0 (along u, and along v unless
        ``uv_scale_v`` is given).
+   * - uv_unit
+     - float
+     - 0 (1 with ``fabric``)
+     - Length of one UV unit in metres, for meshes with physical UVs: sets ``uv_scale``
+       and ``uv_scale_v`` from the tile's size in mm. Not with ``uv_scale``.
    * - uv_scale_v
      - float
      - 0

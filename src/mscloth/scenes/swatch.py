@@ -54,27 +54,35 @@ def sunsky_lights() -> dict:
                        "sun_scale": 0.06, "sky_scale": 0.06}}
 
 
+def swatch_ply(mesh_dir: str | os.PathLike | None = None) -> str:
+    """The draped 50 cm sheet (UVs in metres) as a PLY file, written once to ``mesh_dir``
+    (default: the cache's ``scenes/``). 512 x 512 vertices (1 mm): coarser meshes show the
+    shadow terminator's stair steps in the close view."""
+    from ..cache import default_cache_dir
+    from .drape import drape_ply
+
+    mesh_dir = Path(mesh_dir) if mesh_dir is not None else default_cache_dir() / "scenes"
+    mesh_dir.mkdir(parents=True, exist_ok=True)
+    return drape_ply(mesh_dir, name="swatch", radius=FORM_RADIUS, size=SWATCH_SIZE, folds=7,
+                     resolution=512, uv_size=SWATCH_SIZE, fold_depth=0.3)
+
+
 def swatch_scene(width: int = 480, height: int = 360, fabric: str = "silk-charmeuse",
                  view: str = "arm", light: str = "studio", mesh_dir: str | os.PathLike | None = None,
                  **cloth) -> dict:
     """The swatch scene dictionary for ``fabric`` (a preset name, see
     :mod:`mscloth.fabrics`) seen from ``view`` (``close``, ``arm``, ``room``) under
     ``light`` (``studio``, ``sunsky``); ``cloth`` overrides the BSDF's parameters."""
-    from ..cache import default_cache_dir
     from ..fabrics import fabric as preset
     from .builtin import T
-    from .drape import drape_ply
 
     preset(fabric)  # an unknown name fails here, naming the closest presets
     if view not in VIEWS:
         raise ClothError(f"unknown swatch view {view!r}: expected one of {', '.join(VIEWS)}")
     if light not in LIGHTS:
         raise ClothError(f"unknown swatch lighting {light!r}: expected one of {', '.join(LIGHTS)}")
-    mesh_dir = Path(mesh_dir) if mesh_dir is not None else default_cache_dir() / "scenes"
-    mesh_dir.mkdir(parents=True, exist_ok=True)
     origin, target, fov = VIEWS[view]
-    ply = drape_ply(mesh_dir, name="swatch", radius=FORM_RADIUS, size=SWATCH_SIZE, folds=7,
-                    resolution=192, uv_size=SWATCH_SIZE, fold_depth=0.3)
+    ply = swatch_ply(mesh_dir)
     bsdf = {"type": "cloth", "fabric": fabric, "uv_unit": 1.0}
     if view == "close":
         bsdf["parallax"] = True
@@ -90,6 +98,9 @@ def swatch_scene(width: int = 480, height: int = 360, fabric: str = "silk-charme
                    "sampler": {"type": "independent"}},
         "table": {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90) @ T().scale(6.0),
                   "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.28, 0.28, 0.27]}}},
+        # The rounded form under the cloth: seen through sheer fabrics and through gaps.
+        "form": {"type": "sphere", "center": [0.0, FORM_RADIUS, 0.0], "radius": FORM_RADIUS * 0.98,
+                 "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.55, 0.5, 0.45]}}},
         # Turned so the warp runs left to right: the key above the camera then lights the
         # warp floats' lustre band along the folds.
         "cloth": {"type": "ply", "filename": ply, "face_normals": False, "bsdf": bsdf,
