@@ -285,14 +285,14 @@ FABRICS: dict[str, Fabric] = {f.name: f for f in (
         look="a steep, fine twill line and a soft sheen"),
     Fabric(
         name="linen", title="Linen", structure="woven", pattern="plain", repeat=8, texels_per_thread=8,
-        ends_per_cm=20, picks_per_cm=20, yarn_diameter_mm=(0.47, 0.47), slub=0.2,
+        ends_per_cm=20, picks_per_cm=20, yarn_diameter_mm=(0.5, 0.5), slub=0.15,
         fibre_twist_deg=-15.0, inclination_deg=28.0,
         warp_color=(0.78, 0.72, 0.60), weft_color=(0.74, 0.68, 0.56),
         roughness=0.35, thickness=2.0, specular_albedo=0.25, specular_transmittance=0.1,
         diffuse_albedo=0.6, diffuse_transmittance=0.08,
         sheen_color=(0.85, 0.8, 0.7), sheen_roughness=0.6, sheen_thickness=0.1,
         source="plain weave of wet-spun flax, ~50 x 50 threads/inch, irregular (slubby) yarns "
-               "about +-35% in diameter; flax is spun with a low Z twist",
+               "about +-15% in diameter; flax is spun with a low Z twist",
         look="an uneven, slubby grid of natural-coloured yarns with a dry, low lustre"),
     Fabric(
         name="silk-shantung", title="Silk shantung", structure="woven", pattern="plain", repeat=8,
@@ -312,8 +312,8 @@ FABRICS: dict[str, Fabric] = {f.name: f for f in (
         ends_per_cm=40, picks_per_cm=40, yarn_diameter_mm=(0.10, 0.10),
         fibre_twist_deg=12.0, inclination_deg=25.0,
         warp_color=(0.92, 0.90, 0.86), weft_color=(0.92, 0.90, 0.86),
-        roughness=0.18, thickness=1.5, specular_albedo=0.6, specular_transmittance=0.3,
-        diffuse_albedo=0.15, diffuse_transmittance=0.15,
+        roughness=0.18, thickness=1.5, specular_albedo=0.35, specular_transmittance=0.3,
+        diffuse_albedo=0.35, diffuse_transmittance=0.25,
         sheen_color=(0.95, 0.95, 0.95), sheen_roughness=0.5, sheen_thickness=0.02,
         source="sheer, open plain weave of fine, hard-twisted filament silk, ~100 x 100 "
                "threads/inch; the yarns cover about 40% of each thread spacing",

@@ -23,7 +23,9 @@ def drape_mesh(name: str = "drape", radius: float = 0.5, size: float = 1.6, fold
     top = radius + np.sqrt(np.maximum(radius * radius - cap * cap, 0.0)) + 0.01 * radius
     beyond = np.maximum(r - r0, 0.0)
     # Beyond the cap the sheet falls steeply, pulled in and rippled into folds.
-    rho = cap + beyond * (0.45 + fold_depth * np.sin(folds * theta)) + 0.02 * radius
+    # (The 2% lift away from the sphere fades in from the centre: a constant one tore a
+    # small hole with a nub at the sheet's centre.)
+    rho = cap + beyond * (0.45 + fold_depth * np.sin(folds * theta)) + 0.02 * radius * np.minimum(r / r0, 1.0)
     height = top - beyond * 1.1
     ground = 0.005
     height = np.maximum(height, ground + 0.02 * beyond)

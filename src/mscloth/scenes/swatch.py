@@ -99,7 +99,8 @@ def swatch_scene(width: int = 480, height: int = 360, fabric: str = "silk-charme
         "table": {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90) @ T().scale(6.0),
                   "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.28, 0.28, 0.27]}}},
         # The rounded form under the cloth: seen through sheer fabrics and through gaps.
-        "form": {"type": "sphere", "center": [0.0, FORM_RADIUS, 0.0], "radius": FORM_RADIUS * 0.98,
+        # (Smaller than the ball the drape was shaped on: beyond its cap the sheet is pulled in.)
+        "form": {"type": "sphere", "center": [0.0, 1.25 * FORM_RADIUS, 0.0], "radius": 0.72 * FORM_RADIUS,
                  "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.55, 0.5, 0.45]}}},
         # Turned so the warp runs left to right: the key above the camera then lights the
         # warp floats' lustre band along the folds.
