@@ -138,3 +138,45 @@ def test_swatch_views_and_lights(view, light, tmp_path):
     scene = load_dict(swatch_scene(24, 18, "silk-charmeuse", view, light, mesh_dir=tmp_path))
     image = np.array(mi.render(scene, spp=2, seed=1))
     assert np.all(np.isfinite(image)) and image.mean() > 0.0
+
+
+def test_fabric_file_starts_from_a_base_and_resolves_beside_the_scene(tmp_path, monkeypatch):
+    import json
+
+    from mscloth.loading import load_file
+
+    sub = tmp_path / "scene"
+    sub.mkdir()
+    (sub / "black-denim.json").write_text(json.dumps(
+        {"base": "denim", "warp_color": [0.05, 0.05, 0.05], "roughness": 0.45}))
+    (sub / "scene.xml").write_text(
+        '<scene version="3.0.0"><shape type="rectangle"><bsdf type="cloth" id="c">'
+        '<string name="fabric" value="black-denim.json"/><boolean name="multiscale" value="false"/>'
+        '<boolean name="visibility" value="false"/></bsdf></shape></scene>')
+    monkeypatch.chdir(tmp_path)  # not the scene's directory
+    scene = load_file(str(sub / "scene.xml"))
+    bsdf = scene.shapes()[0].bsdf()
+    assert bsdf.maps.meta["fabric"] == "black-denim"
+    assert dr.allclose(bsdf.roughness, 0.45)
+    assert dr.allclose(bsdf.thickness, fabric("denim").thickness)  # from the base
+    warp = bsdf.maps.albedo[bsdf.maps.yarn_id == 0]
+    assert np.allclose(warp, (0.05 / 12.92), atol=1e-4)  # sRGB 0.05 -> linear
+
+
+def test_fabric_file_errors_name_the_file_and_field(tmp_path):
+    import json
+
+    from mscloth.fabrics import load_fabric_file
+
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"base": "denim", "rouhgness": 0.3}))
+    with pytest.raises(ParameterError, match=r"bad.json: unknown field 'rouhgness' \(did you mean 'roughness'\?\)"):
+        load_fabric_file(bad)
+    bad.write_text(json.dumps({"base": "denim", "roughness": "shiny"}))
+    with pytest.raises(ParameterError, match="bad.json: field 'roughness' must be a number"):
+        load_fabric_file(bad)
+    bad.write_text("{")
+    with pytest.raises(ParameterError, match="bad.json: not valid JSON"):
+        load_fabric_file(bad)
+    with pytest.raises(ParameterError, match="does not exist"):
+        fabric(str(tmp_path / "missing.json"))

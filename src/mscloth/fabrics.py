@@ -24,10 +24,14 @@ the BSDF multiplies every lobe's albedo by them.
 """
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import functools
+import json
 import math
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -341,6 +345,12 @@ FABRICS: dict[str, Fabric] = {f.name: f for f in (
 )}
 
 
+@functools.lru_cache(maxsize=16)
+def _fabric_file(path: str, stamp: int) -> Fabric:
+    # ``stamp`` (the file's mtime) is only part of the cache key: an edited file is re-read.
+    return load_fabric_file(path)
+
+
 def register_fabric(preset: Fabric, replace: bool = False) -> Fabric:
     """Make ``preset`` available by name to the ``cloth`` plugin's ``fabric`` parameter
     (e.g. a variant made with :func:`dataclasses.replace`); an existing name is an error
@@ -357,8 +367,50 @@ def fabric_names() -> list[str]:
     return list(FABRICS)
 
 
-def fabric(name: str) -> Fabric:
-    """The preset called ``name``; an unknown name is an error naming the closest ones."""
+def load_fabric_file(path: str | os.PathLike) -> Fabric:
+    """A preset from a JSON file: an object of :class:`Fabric` fields, optionally starting
+    from ``"base"`` (a preset name) so that it need only say what differs; ``name``
+    defaults to the file's stem. Errors name the file and the field."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except OSError as error:
+        raise ParameterError(f"fabric file {path}: cannot read it ({error.strerror or error})") from None
+    except json.JSONDecodeError as error:
+        raise ParameterError(f"fabric file {path}: not valid JSON (line {error.lineno}: {error.msg})") from None
+    if not isinstance(data, dict):
+        raise ParameterError(f"fabric file {path}: expected a JSON object of Fabric fields")
+    fields = {f.name: f for f in dataclasses.fields(Fabric) if f.init}
+    base_name = data.pop("base", None)
+    base = fabric(base_name) if base_name is not None else None
+    values = {"name": path.stem}
+    for key, value in data.items():
+        if key not in fields:
+            close = difflib.get_close_matches(key, fields, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise ParameterError(f"fabric file {path}: unknown field {key!r}{hint}")
+        reference = getattr(base, key) if base is not None else fields[key].default
+        if isinstance(value, list):
+            value = tuple(value)
+        if isinstance(reference, (int, float)) and not isinstance(reference, bool) and (
+                isinstance(value, bool) or not isinstance(value, (int, float))):
+            raise ParameterError(f"fabric file {path}: field {key!r} must be a number, got {value!r}")
+        values[key] = value
+    try:
+        return dataclasses.replace(base, **values) if base is not None else Fabric(**values)
+    except TypeError as error:  # a field missing without a base
+        raise ParameterError(f"fabric file {path}: {error} (or give \"base\": a preset name)") from None
+
+
+def fabric(name: str, locate=None) -> Fabric:
+    """The preset called ``name``, or read from ``name`` when it is a ``.json`` file
+    (:func:`load_fabric_file`; ``locate`` maps a relative path to where it is, e.g. the
+    scene file's directory); an unknown name is an error naming the closest ones."""
+    if isinstance(name, (str, os.PathLike)) and os.fspath(name).lower().endswith(".json"):
+        path = locate(os.fspath(name)) if locate else os.fspath(name)
+        if not Path(path).is_file():
+            raise ParameterError(f"fabric file {name!r} does not exist")
+        return _fabric_file(str(Path(path).resolve()), Path(path).stat().st_mtime_ns)
     if not isinstance(name, str) or name not in FABRICS:
         close = difflib.get_close_matches(str(name), FABRICS, n=2)
         hint = f" (did you mean {' or '.join(repr(c) for c in close)}?)" if close else ""
@@ -366,4 +418,4 @@ def fabric(name: str) -> Fabric:
     return FABRICS[name]
 
 
-__all__ = ["FABRICS", "Fabric", "fabric", "fabric_names", "register_fabric"]
+__all__ = ["FABRICS", "Fabric", "fabric", "fabric_names", "load_fabric_file", "register_fabric"]

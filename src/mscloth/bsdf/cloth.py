@@ -64,7 +64,8 @@ back side sees the same maps mirrored through the surface.
    * - fabric
      - string
      - none
-     - A fabric preset (:mod:`mscloth.fabrics`, ``mscloth fabrics``): its maps at the
+     - A fabric preset (:mod:`mscloth.fabrics`, ``mscloth fabrics``) or a ``.json``
+       preset file (relative to the scene file): its maps at the
        true thread count and defaults for every parameter below, which still override
        it; UVs are then read in metres (``uv_unit`` 1).
    * - pattern
@@ -250,7 +251,7 @@ def make_cloth_class():
             p = read_parameters(props)
             maps = cloth_maps(p)
             mi.BSDF.__init__(self, props)
-            self.pattern = p.fabric if not p.pattern_given else p.pattern
+            self.pattern = p.fabric.name if not p.pattern_given else p.pattern
             self.label = cloth_label(props.id(), self.pattern)
             self.maps = maps
             self._pinned = []

@@ -80,7 +80,7 @@ class ClothParameters:
     direction_rank: int = 0
     max_table_mib: int = 256
     footprint_slices: int = 1
-    fabric: str | None = None       # the preset the defaults came from
+    fabric: object = None           # the Fabric the defaults came from (mscloth.fabrics)
     pattern_given: bool = True      # False: the maps are the fabric's own
 
 
@@ -145,8 +145,10 @@ def read_parameters(props) -> ClothParameters:
     preset = None
     if "fabric" in props:
         from ..fabrics import fabric
+        from ..loading import resolve_scene_path
 
-        preset = fabric(props.get("fabric"))
+        # A preset's name, or a .json preset file found as Mitsuba finds its own files.
+        preset = fabric(props.get("fabric"), locate=resolve_scene_path)
     preset_values = preset.bsdf_parameters() if preset else {}
     pattern = props.get("pattern", preset.pattern if preset else "plain")
     if not isinstance(pattern, str) or not pattern:
@@ -221,16 +223,14 @@ def read_parameters(props) -> ClothParameters:
         raise ParameterError(f"cloth: parameter 'direction_rank' must be at most direction_bins^2 = {bins} "
                              f"(0: the full directional SAT), got {switches['direction_rank']}")
     return ClothParameters(pattern=pattern, resolution=resolution or None, textures=textures,
-                           fabric=preset.name if preset else None,
+                           fabric=preset,
                            pattern_given=preset is None or "pattern" in props, **floats, **switches)
 
 
 def cloth_maps(p: ClothParameters):
     """The maps a ``cloth`` BSDF shades: its fabric's own, or its ``pattern``'s."""
     if not p.pattern_given:
-        from ..fabrics import fabric
-
-        return fabric(p.fabric).maps(p.resolution)
+        return p.fabric.maps(p.resolution)
     from ..loading import resolve_scene_path
     from ..maps.builtin import resolve_pattern
 
