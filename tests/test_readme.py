@@ -10,8 +10,10 @@ import mscloth
 README = (Path(__file__).resolve().parents[1] / "README.md").read_text()
 
 
-def code_block(language: str) -> str:
-    match = re.search(r"```%s\n(.*?)```" % language, README, re.S)
+def code_block(language: str, section: str | None = None) -> str:
+    """The first ``language`` block of the README, or of its ``## section``."""
+    text = README if section is None else README.split(f"## {section}\n", 1)[1].split("\n## ", 1)[0]
+    match = re.search(r"```%s\n(.*?)```" % language, text, re.S)
     assert match, f"README has no {language} block"
     return match.group(1)
 
@@ -28,7 +30,7 @@ def test_python_example_runs(tmp_path, monkeypatch):
 
 def test_xml_example_loads_and_renders():
     mscloth.register()
-    scene = mi.load_string(code_block("xml"))
+    scene = mi.load_string(code_block("xml", "Using the plugin from Mitsuba XML"))
     image = np.array(mi.render(scene, spp=4))
     assert image.shape == (64, 64, 3) and np.all(np.isfinite(image)) and image.mean() > 0.01
 
@@ -38,3 +40,13 @@ def test_parameter_table_lists_every_parameter():
 
     for name in list(FLOAT_PARAMETERS) + list(SPECTRUM_PARAMETERS) + ["pattern", "resolution"]:
         assert f"| `{name}` |" in README, name
+
+
+def test_fabric_xml_snippet_loads():
+    mscloth.register()
+    bsdf = code_block("xml", "Fabrics")
+    scene = mi.load_string(f'<scene version="3.0.0"><shape type="rectangle">{bsdf}</shape></scene>')
+    cloth = scene.shapes()[0].bsdf()
+    assert cloth.maps.meta["fabric"] == "silk-charmeuse"
+    width_mm = cloth.maps.meta["tile_size_mm"][0]
+    assert abs(cloth.uv_scale[0] - 10.0 / width_mm) < 1e-3 * cloth.uv_scale[0]  # UVs in cm
