@@ -25,10 +25,11 @@ def run(*args, timeout=600):
 #: The rough, sky-lit scenes with woven and knitted cloth; the shiny ones (issue 20) follow.
 ROUGH_SCENES = ("plane", "sphere", "drape")
 SHINY_SCENES = ("satin", "satin-plane", "denim")
+LOOKDEV_SCENES = ("swatch",)  # fabric presets: tests/test_fabrics.py
 
 
 def test_every_scene_is_listed_here():
-    assert sorted(SCENES) == sorted(ROUGH_SCENES + SHINY_SCENES)
+    assert sorted(SCENES) == sorted(ROUGH_SCENES + SHINY_SCENES + LOOKDEV_SCENES)
 
 
 @pytest.mark.parametrize("name", ROUGH_SCENES)

@@ -171,7 +171,11 @@ def cmd_scene(args) -> int:
     accepted = inspect.signature(SCENES[args.name]).parameters
     kwargs = {key: out.parent.resolve() / sub for key, sub in (("mesh_dir", "meshes"), ("maps_dir", "maps"))
               if key in accepted}
-    scene = SCENES[args.name](w, h, **kwargs)
+    options = {name: value for name, value in (("fabric", args.fabric), ("view", args.view),
+                                                 ("light", args.light)) if value is not None}
+    if options and args.name != "swatch":
+        raise ClothError(f"--{next(iter(options))} applies to the swatch scene only, not to {args.name!r}")
+    scene = SCENES[args.name](w, h, **kwargs, **options)
     for node in scene.values():
         if isinstance(node, dict) and node.get("type") == "ply":
             node["filename"] = os.path.relpath(node["filename"], out.parent)
@@ -340,11 +344,14 @@ def build_parser() -> argparse.ArgumentParser:
     render.set_defaults(func=cmd_render)
 
     scene = sub.add_parser("scene", help="write a built-in scene as Mitsuba XML to start from")
-    scene.add_argument("name", help="plane, sphere, drape, satin, satin-plane or denim")
+    scene.add_argument("name", help="swatch, plane, sphere, drape, satin, satin-plane or denim")
     scene.add_argument("--out", required=True, help="output .xml file")
     scene.add_argument("--res", type=_resolution_arg, default=None, help="WIDTHxHEIGHT (default 512x288)")
     scene.add_argument("--force", action="store_true", help="overwrite an existing file")
     scene.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
+    scene.add_argument("--fabric", default=None, help="swatch: the fabric preset (default silk-charmeuse)")
+    scene.add_argument("--view", default=None, choices=("close", "arm", "room"), help="swatch: the view (default arm)")
+    scene.add_argument("--light", default=None, choices=("studio", "sunsky"), help="swatch: the lighting (default studio)")
     scene.set_defaults(func=cmd_scene)
 
     maps = sub.add_parser("maps", help="generate the fibre-level maps of a pattern (weave, WIF draft, knit)")

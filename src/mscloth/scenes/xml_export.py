@@ -12,7 +12,7 @@ from ..errors import ClothError
 CATEGORY = {
     "clothpath": "integrator", "path": "integrator",
     "perspective": "sensor", "hdrfilm": "film", "independent": "sampler", "box": "rfilter",
-    "constant": "emitter", "directional": "emitter",
+    "constant": "emitter", "directional": "emitter", "area": "emitter", "sunsky": "emitter",
     "rectangle": "shape", "sphere": "shape", "ply": "shape", "obj": "shape", "cylinder": "shape",
     "cloth": "bsdf", "diffuse": "bsdf", "principled": "bsdf", "roughconductor": "bsdf",
 }
@@ -46,7 +46,7 @@ def _property(name: str, value, indent: str) -> str:
     raise ClothError(f"cannot write scene property {name!r} of type {type(value).__name__} as XML")
 
 
-def _object(name: str, node: dict, indent: str) -> str:
+def _object(name: str, node: dict, indent: str, top: bool = False) -> str:
     kind = node.get("type")
     if kind == "rgb":
         value = node["value"]
@@ -56,7 +56,8 @@ def _object(name: str, node: dict, indent: str) -> str:
         raise ClothError(f"cannot write plugin type {kind!r} (at {name!r}) as XML")
     tag = CATEGORY[kind]
     head = f"{indent}<{tag} type={quoteattr(kind)}"
-    head += f" id={quoteattr(name)}>" if tag in ("shape", "emitter") else ">"
+    # Ids for the scene's own shapes and emitters (a light's nested emitter needs none).
+    head += f" id={quoteattr(name)}>" if top and tag in ("shape", "emitter") else ">"
     body = [_property(key, value, indent + "    ") for key, value in node.items() if key != "type"]
     return "\n".join([head, *body, f"{indent}</{tag}>"])
 
@@ -65,5 +66,5 @@ def scene_to_xml(scene: dict) -> str:
     """The XML text of a scene dictionary made of the plugin types in :data:`CATEGORY`."""
     if scene.get("type") != "scene":
         raise ClothError("scene_to_xml: expected a dictionary with type 'scene'")
-    body = [_object(key, value, "    ") for key, value in scene.items() if key != "type"]
+    body = [_object(key, value, "    ", top=True) for key, value in scene.items() if key != "type"]
     return "\n".join(['<scene version="3.0.0">', *body, "</scene>", ""])
