@@ -1,5 +1,5 @@
 """Measuring mscloth against brute force (``mscloth compare``, ``make bench``); the renderer
-never imports it. One concern per module:
+never imports it (tests/test_layout.py). One concern per module:
 
 * :mod:`.metrics`: relMSE, FLIP, estimators of noise per sample and squared bias;
 * :mod:`.renders`: a built-in scene, multi-scale or brute force, and one timed render;
