@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import mscloth
+from mscloth.errors import ClothError
 from mscloth.evaluation import compare, references, speedup
 from mscloth.evaluation.metrics import relmse
 from mscloth.evaluation.references import ReferenceCacheWarning, reference_image, reference_path
@@ -430,6 +431,15 @@ def test_report_fits_a_1200_px_window_in_headless_chromium(compared, tmp_path):
 
 
 # ----------------------------------------------------------------------------- bad input
+
+def test_compare_without_the_evaluation_extra_says_what_to_install(monkeypatch, tmp_path):
+    """matplotlib and flip-evaluator are an optional extra: without one, compare stops before
+    writing or rendering anything and names it."""
+    monkeypatch.setitem(compare.EVALUATION_EXTRA, "no_such_module_of_mscloth", "no-such-package")
+    with pytest.raises(ClothError, match=r"needs no-such-package, not installed: pip install 'mscloth\[evaluation\]'"):
+        compare.run_compare("sphere", 16, 9, out_dir=tmp_path / "out", quiet=True)
+    assert not (tmp_path / "out").exists()
+
 
 @pytest.mark.parametrize("args, message", [
     (["nosuchscene"], "unknown scene 'nosuchscene'"),

@@ -1,6 +1,6 @@
 """The package's layout, read from its sources' import statements (top-level and inside
-functions alike): no import cycles between mscloth's modules, and the renderer never reaches
-the evaluation."""
+functions alike): no import cycles between mscloth's modules, the renderer never reaches the
+evaluation, and only the evaluation imports its optional extra (matplotlib, FLIP)."""
 import ast
 from pathlib import Path
 
@@ -8,6 +8,8 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 
 #: The renderer: none of its modules may import mscloth.evaluation, directly or through others.
 RENDERER = ("bsdf", "maps", "precompute", "patterns", "scattering", "integrators")
+#: Third-party modules of the ``evaluation`` extra (pyproject.toml).
+EVALUATION_EXTRA = ("matplotlib", "flip_evaluator")
 #: Cycles there already are, in code this change leaves alone; a new one fails the test.
 #: scenes.builtin imports swatch_scene at its end, and swatch reads builtin's transform T
 #: inside a function: harmless at run time, but a mutual dependency all the same.
@@ -123,3 +125,8 @@ def test_the_renderer_never_reaches_the_evaluation():
             reached = {m for m in reachable(graph, name) if m.startswith("mscloth.evaluation")}
             assert not reached, f"{name} imports {sorted(reached)}"
 
+
+def test_only_the_evaluation_imports_its_optional_extra():
+    graph, third_party = import_graph()
+    users = {name for name, modules in third_party.items() if modules & set(EVALUATION_EXTRA)}
+    assert users and all(name.startswith("mscloth.evaluation.") for name in users), users

@@ -9,4 +9,6 @@ never imports it (tests/test_layout.py). One concern per module:
 * :mod:`.report`: the HTML report and its figures;
 * :mod:`.compare`: the comparison itself (:func:`.compare.run_compare`);
 * :mod:`.error_budget`: noise per sample by light, and each method's bias.
+
+Plots and FLIP need the ``evaluation`` extra (matplotlib, flip-evaluator).
 """

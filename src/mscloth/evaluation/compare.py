@@ -24,6 +24,7 @@ speed-up and when a region is too small for it (:mod:`.speedup`), the report (:m
 from __future__ import annotations
 
 import gc
+import importlib.util
 import json
 import math
 import os
@@ -82,6 +83,19 @@ def convergence_curve(scene, label: str, seed0: int, max_spp: int, budget: float
 
 
 # --------------------------------------------------------------------------- the comparison
+
+#: What the comparison needs beyond the renderer, the ``evaluation`` extra: {module: package}.
+EVALUATION_EXTRA = {"matplotlib": "matplotlib", "flip_evaluator": "flip-evaluator"}
+
+
+def check_evaluation_extra() -> None:
+    """Raise ClothError naming the packages of the ``evaluation`` extra (plots, FLIP) that are
+    not installed: the renderer does without them, the comparison does not."""
+    missing = [package for module, package in EVALUATION_EXTRA.items() if importlib.util.find_spec(module) is None]
+    if missing:
+        raise ClothError(f"mscloth compare needs {' and '.join(missing)}, not installed: "
+                         "pip install 'mscloth[evaluation]'")
+
 
 def check_writable(directory: Path) -> None:
     """Raise ClothError unless files can be created in ``directory`` (made if missing)."""
@@ -167,6 +181,7 @@ def run_compare(name: str, width: int, height: int, budget: float = 60.0, refere
         raise ClothError(f"--reference-spp must be an even number >= 2, got {reference_spp}")
     if spp_multiscale < 1:
         raise ClothError(f"multi-scale spp must be >= 1, got {spp_multiscale}")
+    check_evaluation_extra()
     out_dir = Path(out_dir) if out_dir is not None else Path("out") / f"compare-{name}"
     check_writable(out_dir)
     if json_path is not None:
