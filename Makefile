@@ -14,7 +14,7 @@ test:
 	$(PY) -m pytest -q
 
 bench: setup
-	$(PY) -m mscloth.benchmark --out bench/RESULTS.md
+	$(PY) bench/benchmark.py --out bench/RESULTS.md
 	$(PY) bench/footprint_estimator.py --set resolution=128 --out bench/RESULTS.md
 
 clean:

@@ -12,8 +12,7 @@ def setup_mitsuba():
     import mitsuba as mi
 
     import mscloth
-    mi.set_variant(mscloth.default_variant())
-    mscloth.register()
+    mscloth.setup_mitsuba()
     return mi
 
 

@@ -27,8 +27,11 @@ def main(argv=None) -> int:
     parser.add_argument("--spp", type=int, default=4)
     args = parser.parse_args(argv)
     mi = setup_mitsuba()
-    from mscloth.compare import REGIONS, depth_and_cloth, reference_image, region_masks, timed_render
-    from mscloth.error_budget import LIGHTS, NOISE_SEED, lit_scene, per_sample_noise
+    from mscloth.evaluation.error_budget import LIGHTS, NOISE_SEED, lit_scene
+    from mscloth.evaluation.metrics import per_sample_noise
+    from mscloth.evaluation.references import reference_image
+    from mscloth.evaluation.regions import REGIONS, depth_and_cloth, region_masks
+    from mscloth.evaluation.renders import timed_render
 
     width, height = (int(v) for v in args.res.split("x"))
     masks = region_masks(*depth_and_cloth(args.scene, width, height))[0]

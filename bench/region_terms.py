@@ -56,8 +56,8 @@ _DIRECT_REFERENCES = {}
 
 def direct_reference(name: str, width: int, height: int, spp: int):
     """(image, variance of its mean) of brute force, direct sunlight alone, at ``spp``."""
-    from mscloth.compare import timed_render
-    from mscloth.error_budget import LIGHTS, lit_scene
+    from mscloth.evaluation.error_budget import LIGHTS, lit_scene
+    from mscloth.evaluation.renders import timed_render
 
     key = (name, width, height, spp)
     if key not in _DIRECT_REFERENCES:
@@ -77,8 +77,11 @@ def measure(name: str, width: int, height: int, attrs: dict, params: dict, rende
     (sun and sky; and "bias2 direct sun": direct sunlight alone, against a brute-force
     reference of it rendered here at ``direct_reference_spp``); seconds per sample per pixel
     of the image (the median render, sun and sky)."""
-    from mscloth.compare import REGIONS, depth_and_cloth, reference_image, region_masks, timed_render
-    from mscloth.error_budget import BIAS_SEEDS, LIGHTS, NOISE_SEED, lit_scene, per_sample_noise, squared_bias
+    from mscloth.evaluation.error_budget import BIAS_SEEDS, LIGHTS, NOISE_SEED, lit_scene
+    from mscloth.evaluation.metrics import per_sample_noise, squared_bias
+    from mscloth.evaluation.references import reference_image
+    from mscloth.evaluation.regions import REGIONS, depth_and_cloth, region_masks
+    from mscloth.evaluation.renders import timed_render
 
     saved = set_class_attributes(attrs)
     try:
@@ -118,7 +121,7 @@ def main(argv=None) -> int:
     parser.add_argument("--res", default="320x180")
     args = parser.parse_args(argv)
     setup_mitsuba()
-    from mscloth.compare import REGIONS
+    from mscloth.evaluation.regions import REGIONS
     width, height = (int(v) for v in args.res.split("x"))
     print(f"| {args.scene} variant | region | noise per sample: sun | sun, direct only | sun + sky | "
           "bias^2 | bias^2, direct sun | seconds per spp |")

@@ -1,5 +1,13 @@
 """`make bench`'s report writer: the tables it writes from measured rows (no rendering)."""
-from mscloth.benchmark import write_results
+import importlib.util
+from pathlib import Path
+
+# bench/benchmark.py is a script beside the package, not part of it: loaded from its file.
+_SPEC = importlib.util.spec_from_file_location(
+    "bench_benchmark", Path(__file__).resolve().parents[1] / "bench" / "benchmark.py")
+benchmark = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(benchmark)
+write_results = benchmark.write_results
 
 
 def region(speedup, spp_bf_curve):
@@ -56,13 +64,13 @@ def test_results_page_has_every_table_and_the_split_of_the_speed_up(tmp_path):
 def test_scenes_only_page_leaves_out_the_other_sections(tmp_path):
     out = tmp_path / "RESULTS.md"
     compare = [("satin", {g: region(2.0, (1, 16)) for g in ("near", "middle", "far")})]
-    write_results(out, "python -m mscloth.benchmark --scenes satin --scenes-only", "llvm_ad_rgb", [], "", [], 1024,
+    write_results(out, "python bench/benchmark.py --scenes satin --scenes-only", "llvm_ad_rgb", [], "", [], 1024,
                   compare_rows=compare, budget_rows=[("satin", {g: BUDGET for g in ("near", "middle", "far")})],
                   compare_res=(64, 36), compare_budget=5.0)
     text = out.read_text()
     assert "## Multi-scale vs brute force (`mscloth compare`, 64x36, budget 5 s)" in text
     assert "| satin | far | 2.00x | 0.001 | 0.04 / 0.12 | 7.5 / 2.5 | 1.00x |" in text
-    assert "(`mscloth.error_budget`, 64x36)" in text
+    assert "(`mscloth.evaluation.error_budget`, 64x36)" in text
     for absent in ("## Per-sample cost", "## Multi-scale tables", "## Control-variate bias", "## Map generation"):
         assert absent not in text
 
@@ -70,11 +78,9 @@ def test_scenes_only_page_leaves_out_the_other_sections(tmp_path):
 def test_scene_and_comparison_options_are_checked(capsys):
     import pytest
 
-    from mscloth.benchmark import main
-
     for bad, message in ((["--scenes", "satin,nosuch"], "expected comma-separated built-in scenes"),
                          (["--compare-res", "wide"], "WIDTHxHEIGHT"),
                          (["--compare-budget", "0"], "--compare-budget")):
         with pytest.raises(SystemExit) as exit_info:
-            main(bad)
+            benchmark.main(bad)
         assert exit_info.value.code == 2 and message in capsys.readouterr().err

@@ -13,9 +13,12 @@ import numpy as np
 import pytest
 
 import mscloth
-from mscloth import compare
-from mscloth.compare import (REGIONS, ReferenceCacheWarning, closest_in_time, equal_error_time, reference_image,
-                             reference_path, region_masks, relmse)
+from mscloth.errors import ClothError
+from mscloth.evaluation import compare, references, speedup
+from mscloth.evaluation.metrics import relmse
+from mscloth.evaluation.references import ReferenceCacheWarning, reference_image, reference_path
+from mscloth.evaluation.regions import REGIONS, region_masks
+from mscloth.evaluation.speedup import closest_in_time, equal_error_time
 
 mscloth.register()
 
@@ -146,7 +149,7 @@ def test_reference_cache_miss_hit_and_corrupt_file_recomputed(tmp_path, monkeypa
         calls.append((name, w, h, spp))
         return np.full((h, w, 3), 0.25, np.float32), np.zeros((h, w, 3), np.float32)
 
-    monkeypatch.setattr(compare, "_render_reference", fake_render)
+    monkeypatch.setattr(references, "_render_reference", fake_render)
     again, again_var, cached = reference_image("sphere", 16, 9, 2, quiet=True)
     assert cached and not calls and np.array_equal(again, image) and np.array_equal(again_var, variance)
 
@@ -161,7 +164,7 @@ def test_reference_cache_miss_hit_and_corrupt_file_recomputed(tmp_path, monkeypa
     assert reference_image("sphere", 16, 9, 2, quiet=True)[2]  # the rewritten file is good
 
     # a readable file of the wrong shape is recomputed too
-    np.savez(path.with_suffix(".tmp.npz"), key=np.array(compare.reference_key("sphere", 16, 9, 2)),
+    np.savez(path.with_suffix(".tmp.npz"), key=np.array(references.reference_key("sphere", 16, 9, 2)),
              image=np.zeros((9, 15, 3), np.float32), variance=np.zeros((9, 15, 3), np.float32))
     os.replace(path.with_suffix(".tmp.npz"), path)
     with pytest.warns(ReferenceCacheWarning, match="shape"):
@@ -196,7 +199,7 @@ def _img_sources(html_text):
 
 
 def test_report_references_only_existing_files_and_is_never_half_written(tmp_path, monkeypatch):
-    from mscloth import report
+    from mscloth.evaluation import report
 
     result, images, masks, depth = _synthetic_result()
     page = report.write_report(tmp_path / "r", result, images, masks, depth)
@@ -218,15 +221,15 @@ def test_report_references_only_existing_files_and_is_never_half_written(tmp_pat
 
 
 def test_few_pixels_threshold_gives_a_warning_below_it_only():
-    assert compare.MIN_REGION_PIXELS == 400  # 2/sqrt(N) = 10 % relative standard error of a speed-up
-    assert compare.few_pixels_warning(400) is None and compare.few_pixels_warning(10_000) is None
-    text = compare.few_pixels_warning(100)
+    assert speedup.MIN_REGION_PIXELS == 400  # 2/sqrt(N) = 10 % relative standard error of a speed-up
+    assert speedup.few_pixels_warning(400) is None and speedup.few_pixels_warning(10_000) is None
+    text = speedup.few_pixels_warning(100)
     assert "only 100 pixels" in text and "about 20 %" in text  # 2/sqrt(100)
-    assert "only 399 pixels" in compare.few_pixels_warning(399)
+    assert "only 399 pixels" in speedup.few_pixels_warning(399)
 
 
 def test_terminal_summary_and_report_warn_beside_the_speedup_of_a_small_region(tmp_path):
-    from mscloth import report
+    from mscloth.evaluation import report
 
     result, images, masks, depth = _synthetic_result()
     assert [result["regions"]["pixels"][g] for g in REGIONS] == [96, 240, 624]
@@ -234,7 +237,7 @@ def test_terminal_summary_and_report_warn_beside_the_speedup_of_a_small_region(t
     rows = {line.split()[0]: line for line in lines[1:4]}
     assert rows["near"].endswith("!") and rows["middle"].endswith("!") and not rows["far"].endswith("!")
     assert [line for line in lines if line.startswith("! warning:")] == [
-        f"! warning: near: {compare.few_pixels_warning(96)}", f"! warning: middle: {compare.few_pixels_warning(240)}"]
+        f"! warning: near: {speedup.few_pixels_warning(96)}", f"! warning: middle: {speedup.few_pixels_warning(240)}"]
     page = report.write_report(tmp_path / "r", result, images, masks, depth).read_text()
     cells = re.findall(r"<td><b>[0-9.]+x</b>(.*?)</td>", page)
     assert len(cells) == 3
@@ -269,7 +272,7 @@ def _tick_labels_in_view(axis, lo, hi):
 def test_convergence_figure_fits_1200_px_with_a_row_per_region_and_labelled_log_axes():
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    from mscloth import report
+    from mscloth.evaluation import report
 
     for result in (_synthetic_result()[0], _narrow_result()):
         figure = report.convergence_figure(result)
@@ -293,7 +296,7 @@ def test_convergence_figure_fits_1200_px_with_a_row_per_region_and_labelled_log_
 
 
 def test_log_ticks_prefer_round_values_and_do_not_crowd():
-    from mscloth.report import log_ticks
+    from mscloth.evaluation.report import log_ticks
 
     assert log_ticks(0.06, 0.33) == pytest.approx([0.06, 0.1, 0.2, 0.3])  # not 0.06, 0.07, 0.08, 0.09, 0.1, ...
     assert log_ticks(0.2, 0.7) == pytest.approx([0.2, 0.3, 0.4, 0.5, 0.7])
@@ -304,7 +307,7 @@ def test_log_ticks_prefer_round_values_and_do_not_crowd():
 def test_label_log_axis_labels_spans_from_a_fraction_of_a_step_to_many_decades():
     from matplotlib.figure import Figure
 
-    from mscloth.report import label_log_axis
+    from mscloth.evaluation.report import label_log_axis
 
     for lo, hi in ((0.031, 0.034), (0.31, 0.45), (0.2, 0.7), (0.03, 0.8), (1e-5, 3.0), (1e-9, 1e3)):
         ax = Figure().add_subplot()
@@ -345,7 +348,7 @@ def test_compare_sphere_writes_json_for_three_regions_and_the_report(compared):
     # 48x27 holds about a hundred pixels per region: each speed-up is flagged, on the terminal too
     for g in REGIONS:
         pixels = data["regions"]["pixels"][g]
-        assert pixels < compare.MIN_REGION_PIXELS and data["regions"]["warnings"][g] == compare.few_pixels_warning(pixels)
+        assert pixels < speedup.MIN_REGION_PIXELS and data["regions"]["warnings"][g] == speedup.few_pixels_warning(pixels)
         assert f"! warning: {g}: only {pixels} pixels" in result.stdout
     report = root / "report" / "report.html"
     assert report.is_file()
@@ -428,6 +431,15 @@ def test_report_fits_a_1200_px_window_in_headless_chromium(compared, tmp_path):
 
 
 # ----------------------------------------------------------------------------- bad input
+
+def test_compare_without_the_evaluation_extra_says_what_to_install(monkeypatch, tmp_path):
+    """matplotlib and flip-evaluator are an optional extra: without one, compare stops before
+    writing or rendering anything and names it."""
+    monkeypatch.setitem(compare.EVALUATION_EXTRA, "no_such_module_of_mscloth", "no-such-package")
+    with pytest.raises(ClothError, match=r"needs no-such-package, not installed: pip install 'mscloth\[evaluation\]'"):
+        compare.run_compare("sphere", 16, 9, out_dir=tmp_path / "out", quiet=True)
+    assert not (tmp_path / "out").exists()
+
 
 @pytest.mark.parametrize("args, message", [
     (["nosuchscene"], "unknown scene 'nosuchscene'"),

@@ -3,8 +3,9 @@ statistics, and one small run on a built-in scene."""
 import numpy as np
 import pytest
 
-from mscloth.compare import REGIONS, RELMSE_EPS
-from mscloth.error_budget import LIGHTS, noise_only_speedup, per_sample_noise, squared_bias
+from mscloth.evaluation.error_budget import LIGHTS, noise_only_speedup
+from mscloth.evaluation.metrics import RELMSE_EPS, per_sample_noise, squared_bias
+from mscloth.evaluation.regions import REGIONS
 
 SHAPE = (40, 50, 3)
 
@@ -54,7 +55,7 @@ def test_budget_of_a_small_plane_separates_lights_and_methods(monkeypatch, tmp_p
     and a bias for each case; under the sun alone brute force is noisier than multi-scale
     near and in the middle (the weave's noise is what multi-scale shading removes; at the
     horizon the sheen covers the weave, so there is nothing to remove there)."""
-    from mscloth.error_budget import error_budget
+    from mscloth.evaluation.error_budget import error_budget
 
     monkeypatch.setenv("MSCLOTH_CACHE", str(tmp_path / "cache"))
     budget = error_budget("plane", 48, 27, noise_renders=4, noise_spp=2, bias_spp=8,

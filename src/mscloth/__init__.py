@@ -26,7 +26,23 @@ def register() -> None:
     register_integrators()
 
 
+def setup_mitsuba(variant: str | None = None) -> str:
+    """Make ``variant`` active (default: the active one, else :func:`default_variant`),
+    register mscloth's plugins for it and return it: the one set-up of the command line and
+    of :mod:`mscloth.evaluation`."""
+    import mitsuba as mi
+
+    if variant is None:
+        variant = set_default_variant()
+    else:
+        if variant not in mi.variants():
+            raise ClothError(f"unknown variant {variant!r}: expected one of {', '.join(mi.variants())}")
+        mi.set_variant(variant)
+    register()
+    return variant
+
+
 __all__ = [
     "ClothError", "MapsError", "ParameterError", "PatternError",
-    "configure_llvm", "default_variant", "register", "set_default_variant", "__version__",
+    "configure_llvm", "default_variant", "register", "set_default_variant", "setup_mitsuba", "__version__",
 ]

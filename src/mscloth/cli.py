@@ -9,7 +9,7 @@ import time
 import warnings
 from pathlib import Path
 
-from . import __version__
+from . import __version__, setup_mitsuba
 from .errors import ClothError
 
 
@@ -25,19 +25,6 @@ def _positive_int(low: int, high: int):
     return parse
 
 
-def _setup(variant: str | None) -> str:
-    import mitsuba as mi
-
-    from . import default_variant, register
-
-    chosen = variant or default_variant()
-    if chosen not in mi.variants():
-        raise ClothError(f"unknown variant {chosen!r}: expected one of {', '.join(mi.variants())}")
-    mi.set_variant(chosen)
-    register()
-    return chosen
-
-
 def cmd_demo(args) -> int:
     import mitsuba as mi
 
@@ -45,7 +32,7 @@ def cmd_demo(args) -> int:
     from .render import KernelCompilation, render_progressive, throughput_text, write_images
     from .scenes.demo import demo_scene
 
-    variant = _setup(args.variant)
+    variant = setup_mitsuba(args.variant)
     out = Path(args.out)
     exr = out / "demo.exr"
     print(f"mscloth demo: {args.res}x{args.res}, {args.spp} spp, variant {variant}")
@@ -127,7 +114,7 @@ def cmd_render(args) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".exr":
         raise ClothError(f"--out must name an .exr file (a .png is written beside it), got {out}")
-    variant = _setup(args.variant)
+    variant = setup_mitsuba(args.variant)
     options = {name: value for name, value in (("fabric", args.fabric), ("view", args.view),
                                                  ("light", args.light)) if value is not None}
     if options and args.scene != "swatch":
@@ -162,7 +149,7 @@ def cmd_scene(args) -> int:
         raise ClothError(f"--out must name an .xml file, got {out}")
     if out.exists() and not args.force:
         raise ClothError(f"{out} exists; pass --force to overwrite")
-    _setup(args.variant)
+    setup_mitsuba(args.variant)
     out.parent.mkdir(parents=True, exist_ok=True)
     w, h = args.res or (512, 288)
     # Meshes and cloth maps next to the XML. Meshes are referenced relatively, so the folder
@@ -227,7 +214,7 @@ def cmd_maps(args) -> int:
 
 
 def cmd_compare(args) -> int:
-    from .compare import run_compare
+    from .evaluation.compare import run_compare
     from .scenes.builtin import SCENES
 
     if args.scene not in SCENES:
@@ -245,7 +232,7 @@ def cmd_compare(args) -> int:
     w, h = args.res or (320, 180)
     out = Path(args.out) if args.out else Path("out") / f"compare-{args.scene}"
     if args.variant:
-        _setup(args.variant)
+        setup_mitsuba(args.variant)
     run_compare(args.scene, w, h, budget=budget, reference_spp=reference_spp, out_dir=out,
                 json_path=Path(args.json) if args.json else None)
     return 0

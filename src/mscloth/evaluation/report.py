@@ -14,9 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import atomic_path, atomic_write
-from .compare import (MIN_REGION_PIXELS, REGIONS, few_pixels_warning, relmse_map, speedup_relative_error,
-                      to_srgb8)
+from ..atomic import atomic_path, atomic_write
+from .metrics import relmse_map, to_srgb8
+from .regions import REGIONS
+from .speedup import MIN_REGION_PIXELS, few_pixels_warning, speedup_relative_error
 
 REGION_COLOURS = {"near": (0.90, 0.25, 0.20), "middle": (0.20, 0.75, 0.30), "far": (0.25, 0.45, 0.95)}
 METHOD_LABELS = {"reference": "reference (brute force)", "multiscale": "multi-scale",

@@ -2,6 +2,9 @@
 
 Every ratio in one table comes from one run on one machine: the renders of one
 scene differ only in the BSDF on its shapes.
+
+    .venv/bin/python bench/benchmark.py --out bench/RESULTS.md
+    .venv/bin/python bench/benchmark.py --scenes satin,satin-plane --scenes-only --out bench/satin.md
 """
 from __future__ import annotations
 
@@ -12,6 +15,10 @@ import statistics
 import sys
 import time
 from pathlib import Path
+
+#: The checkout: its src/ comes first on the path, so the package measured is this one.
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
 
 
 def _best_of(fn, repeats: int) -> float:
@@ -57,8 +64,8 @@ def bench_bsdf_cost(resolution: int, spp: int, repeats: int) -> list[tuple]:
     import drjit as dr
     import mitsuba as mi
 
-    from .loading import load_dict
-    from .scenes.demo import cost_scene
+    from mscloth.loading import load_dict
+    from mscloth.scenes.demo import cost_scene
 
     # A dict with "type": the BSDF on both shapes; without: parameters changed on the cloth.
     contenders = {
@@ -137,9 +144,9 @@ def bench_bsdf_calls(lanes: int = 1 << 21, repeats: int = 7) -> list[tuple[str, 
     import mitsuba as mi
     import numpy as np
 
-    from .integrators.clothpath import eval_pdf_sample_n
-    from .jit_arrays import lane_values
-    from .scenes.demo import cost_scene
+    from mscloth.integrators.clothpath import eval_pdf_sample_n
+    from mscloth.jit_arrays import lane_values
+    from mscloth.scenes.demo import cost_scene
 
     cloth = cost_scene(resolution=32)["ball"]["bsdf"]
     bsdfs = {
@@ -199,10 +206,10 @@ MAP_PATTERNS = ("plain", "twill-2-1-S", "satin-8-3", "jersey", "rib-2-2", "wif:2
 
 def bench_map_generation(resolution: int, repeats: int) -> list[tuple[str, float, tuple[int, int]]]:
     """Seconds (best of ``repeats``) to generate each pattern's maps at ``resolution`` along u."""
-    from .maps.generate import generate_maps
-    from .patterns.named import named_pattern
+    from mscloth.maps.generate import generate_maps
+    from mscloth.patterns.named import named_pattern
 
-    shared = Path(__file__).resolve().parents[3] / "shared" / "data" / "wif"
+    shared = ROOT.parent / "shared" / "data" / "wif"
     rows = []
     for spec in MAP_PATTERNS:
         if spec.startswith("wif:"):
@@ -222,9 +229,9 @@ def bench_map_generation(resolution: int, repeats: int) -> list[tuple[str, float
 def bench_tables(repeats: int = 1) -> list[tuple]:
     """(resolution, dr, rank, seconds, MiB, directional-SAT MiB) of building the multi-scale
     tables of a plain weave (rank 0: the full directional SAT)."""
-    from .maps.woven import woven_maps
-    from .patterns.weaves import plain
-    from .precompute.tables import build_tables
+    from mscloth.maps.woven import woven_maps
+    from mscloth.patterns.weaves import plain
+    from mscloth.precompute.tables import build_tables
 
     rows = []
     for res in (256, 512):
@@ -260,7 +267,7 @@ def bench_ccv_bias() -> list[tuple]:
     [(error, standard error) per base])."""
     import mitsuba as mi
 
-    from .validation import brute_force, footprint_expectation
+    from mscloth.validation import brute_force, footprint_expectation
 
     params = {"type": "cloth", "pattern": "plain", "roughness": 0.4, "thickness": 1.5,
               "specular_albedo": 0.5, "specular_transmittance": 0.3, "diffuse_albedo": 0.3,
@@ -291,8 +298,8 @@ def bench_compare(scenes=None, res=COMPARE_RES, budget: float = COMPARE_BUDGET,
                   out_root: Path = Path("out")) -> list[tuple[str, dict]]:
     """`mscloth compare` on each of ``scenes`` (default: every built-in scene); (scene, its
     JSON figures)."""
-    from .compare import run_compare
-    from .scenes.builtin import SCENES
+    from mscloth.evaluation.compare import run_compare
+    from mscloth.scenes.builtin import SCENES
 
     rows = []
     for name in (SCENES if scenes is None else scenes):
@@ -310,9 +317,9 @@ BUDGET_SCENES = ("plane", "sphere", "satin", "satin-plane", "denim")
 
 
 def bench_error_budget(scenes=BUDGET_SCENES, res=COMPARE_RES, **kw) -> list[tuple[str, dict]]:
-    """:func:`mscloth.error_budget.error_budget` of ``scenes`` at compare's setting (``kw``:
+    """:func:`mscloth.evaluation.error_budget.error_budget` of ``scenes`` at compare's setting (``kw``:
     its sample counts, for quick runs)."""
-    from .error_budget import error_budget
+    from mscloth.evaluation.error_budget import error_budget
 
     rows = []
     for name in scenes:
@@ -331,7 +338,7 @@ def seconds_per_sample(region: dict) -> tuple[float, float]:
 
 def _summary_lines(compare_rows, budget_rows) -> list[str]:
     """One row per scene and region: what the speed-up is made of."""
-    from .error_budget import noise_only_speedup
+    from mscloth.evaluation.error_budget import noise_only_speedup
 
     budgets = dict(budget_rows)
     lines = [
@@ -368,7 +375,7 @@ def _summary_lines(compare_rows, budget_rows) -> list[str]:
 
 
 def _budget_lines(budget_rows, compare_rows, res=COMPARE_RES) -> list[str]:
-    from .error_budget import BIAS_SPP, NOISE_RENDERS, NOISE_SPP, noise_only_speedup
+    from mscloth.evaluation.error_budget import BIAS_SPP, NOISE_RENDERS, NOISE_SPP, noise_only_speedup
 
     speedups = dict(compare_rows)
     # (scene, region, its budget, its compare figures, multi-scale's time per sample over brute force's)
@@ -379,7 +386,7 @@ def _budget_lines(budget_rows, compare_rows, res=COMPARE_RES) -> list[str]:
             cells.append((name, g, budget[g], r, r["seconds_multiscale"] / r["seconds_bruteforce_equal_spp"]))
     lines = [
         "",
-        f"## Why: noise per sample and bias (`mscloth.error_budget`, {res[0]}x{res[1]})",
+        f"## Why: noise per sample and bias (`mscloth.evaluation.error_budget`, {res[0]}x{res[1]})",
         "",
         f"relMSE = bias^2 + noise / spp. Noise per sample: {NOISE_RENDERS} renders of {NOISE_SPP} spp, both "
         "methods, with the",
@@ -510,8 +517,8 @@ def _table_lines(table_rows) -> list[str]:
         "| tile | dr | directional SAT | build seconds | memory MiB | of which directional SAT |",
         "|---|---|---|---|---|---|",
     ]
-    from .bsdf.parameters import INT_PARAMETERS
-    from .precompute.tables import choose_direction_rank
+    from mscloth.bsdf.parameters import INT_PARAMETERS
+    from mscloth.precompute.tables import choose_direction_rank
 
     budget = INT_PARAMETERS["max_table_mib"][0]
     for res, dr_bins, rank, seconds, mib, d_mib in table_rows:
@@ -612,7 +619,7 @@ def _maps_lines(maps_seconds) -> list[str]:
 
 
 def _scene_list(text: str) -> list[str]:
-    from .scenes.builtin import SCENES
+    from mscloth.scenes.builtin import SCENES
 
     names = [name.strip() for name in text.split(",") if name.strip()]
     unknown = [name for name in names if name not in SCENES]
@@ -633,7 +640,7 @@ def _res_pair(text: str) -> tuple[int, int]:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m mscloth.benchmark")
+    parser = argparse.ArgumentParser(prog="python bench/benchmark.py")
     parser.add_argument("--out", default="bench/RESULTS.md")
     parser.add_argument("--res", type=int, default=256, help="per-sample cost: the demo scene's resolution")
     parser.add_argument("--spp", type=int, default=64)
@@ -653,14 +660,10 @@ def main(argv=None) -> int:
     if not args.compare_budget > 0:
         parser.error(f"--compare-budget must be a positive number of seconds, got {args.compare_budget}")
 
-    import mitsuba as mi
+    from mscloth import setup_mitsuba
+    from mscloth.scenes.builtin import SCENES
 
-    from . import default_variant, register
-    from .scenes.builtin import SCENES
-
-    variant = default_variant()
-    mi.set_variant(variant)
-    register()
+    variant = setup_mitsuba()
     print(f"benchmark: variant {variant}", flush=True)
     cost_rows, call_rows, maps_seconds, table_rows, ccv_rows = [], [], [], [], []
     lanes, maps_res = 1 << 21, 1024
@@ -683,7 +686,7 @@ def main(argv=None) -> int:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     command = "make bench" if argv is None and sys.argv[1:] == ["--out", "bench/RESULTS.md"] else \
-        "python -m mscloth.benchmark " + " ".join(sys.argv[1:] if argv is None else argv)
+        "python bench/benchmark.py " + " ".join(sys.argv[1:] if argv is None else argv)
     write_results(out, command, variant, cost_rows, f"{args.res}x{args.res}, {args.spp} spp",
                   maps_seconds, maps_res, table_rows, ccv_rows, compare_rows, budget_rows, call_rows,
                   f"{lanes} shading points, footprints of {CALL_FOOTPRINT_TEXELS:g} texels shared by "

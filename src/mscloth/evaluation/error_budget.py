@@ -19,21 +19,17 @@ With noise alone (no bias), the equal-error speed-up would be
 (v_bruteforce / v_multiscale) / (time per sample, multi-scale / brute force): the bound the
 benchmark reports next to the measured speed-up.
 
-Estimators (per pixel, then averaged over a region's pixels and the RGB channels, with the
-relMSE normalisation (img - ref)^2 / (ref^2 + eps) of :mod:`.compare`):
-
-* per-sample noise from k renders of n spp each: n * sample variance over the k renders;
-* squared bias from halves A, B of n spp each and a reference of variance r (of its mean):
-  ((A + B) / 2 - ref)^2 - (A - B)^2 / 4 - r, unbiased because E[(A - B)^2 / 4] is the
-  variance of (A + B) / 2.
+The estimators (noise per sample, squared bias) are in :mod:`.metrics`.
 """
 from __future__ import annotations
 
 import gc
 
-import numpy as np
-
-from .compare import REGIONS, RELMSE_EPS
+from .. import setup_mitsuba
+from .metrics import per_sample_noise, squared_bias
+from .references import reference_image
+from .regions import REGIONS, depth_and_cloth, region_masks
+from .renders import scene_dict, timed_render
 
 #: Lighting cases: the built-in scenes' emitter keys left in.
 LIGHTS = {"both": ("sun", "sky"), "sun": ("sun",), "sky": ("sky",)}
@@ -42,36 +38,12 @@ NOISE_SEED = 30_000
 BIAS_SEEDS = (40_000, 50_000)
 
 
-def per_sample_noise(images, spp: int, ref, eps: float = RELMSE_EPS) -> np.ndarray:
-    """Per-pixel relative variance of one sample: ``spp`` times the sample variance over the
-    independent ``images`` (k >= 2 renders of ``spp`` samples each, shape (k, H, W, C)),
-    over ref^2 + eps, mean over channels."""
-    images = np.asarray(images, dtype=np.float64)
-    if images.ndim != 4 or images.shape[0] < 2:
-        raise ValueError(f"per_sample_noise: expected (k >= 2, H, W, C) images, got shape {images.shape}")
-    var = images.var(axis=0, ddof=1) * spp
-    return (var / (np.asarray(ref, np.float64) ** 2 + eps)).mean(axis=-1)
-
-
-def squared_bias(half_a, half_b, ref, ref_var, eps: float = RELMSE_EPS) -> np.ndarray:
-    """Per-pixel unbiased estimate of the relative squared bias of the method that rendered
-    the independent halves ``half_a``, ``half_b`` (same spp) against ``ref`` whose mean has
-    variance ``ref_var``; mean over channels. Single pixels can be negative (it is an
-    estimate); region means are what it is for."""
-    a = np.asarray(half_a, np.float64)
-    b = np.asarray(half_b, np.float64)
-    ref = np.asarray(ref, np.float64)
-    estimate = (0.5 * (a + b) - ref) ** 2 - 0.25 * (a - b) ** 2 - np.asarray(ref_var, np.float64)
-    return (estimate / (ref ** 2 + eps)).mean(axis=-1)
-
-
 def lit_scene(name, width, height, multiscale, lights=LIGHTS["both"], max_depth=None, **cloth):
     """Scene ``name`` (multi-scale or brute force) with only the emitters ``lights``, the
     cloth parameters ``cloth`` and, if given, the integrator's ``max_depth`` (2: direct
     light only), loaded."""
-    from .compare import scene_dict
-    from .loading import load_dict
-    from .scenes.builtin import set_cloth_parameters
+    from ..loading import load_dict
+    from ..scenes.builtin import set_cloth_parameters
 
     scene = scene_dict(name, width, height, multiscale)
     for key in LIGHTS["both"]:
@@ -95,9 +67,7 @@ def error_budget(name: str, width: int, height: int, noise_renders: int = NOISE_
     case (``noise``: {method: {light: value}}), and the squared bias of each method with the
     scene's lights (``bias``: {"multiscale": value, "bruteforce": value}), all in relMSE
     units against ``compare``'s cached reference."""
-    from .compare import _setup_mitsuba, depth_and_cloth, reference_image, region_masks, timed_render
-
-    _setup_mitsuba()
+    setup_mitsuba()
     say = (lambda *a: None) if quiet else (lambda *a: print(*a, flush=True))
     masks = region_masks(*depth_and_cloth(name, width, height))[0]
     ref, ref_var, _ = reference_image(name, width, height, reference_spp, quiet=True)

@@ -1,0 +1,50 @@
+"""What ``mscloth compare`` renders: a built-in scene, multi-scale or brute force, and one
+timed ``mi.render`` of it (see :mod:`.compare` for what the time leaves out)."""
+from __future__ import annotations
+
+import gc
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ClothError
+
+#: Seeds: reference halves, multi-scale and brute-force curve points never share one.
+REFERENCE_SEEDS = (1_000_000, 2_000_000)
+MULTISCALE_SEED = 10_000
+BRUTEFORCE_SEED = 20_000
+
+
+def scene_dict(name: str, width: int, height: int, multiscale: bool) -> dict:
+    """A built-in scene's dictionary; brute force (``multiscale=False``) differs only in its cloth BSDFs."""
+    from ..scenes.builtin import builtin_scene, set_cloth_parameters
+
+    scene = builtin_scene(name, width, height)
+    if set_cloth_parameters(scene, multiscale=multiscale) == 0:
+        raise ClothError(f"scene {name!r} has no cloth BSDF to compare")
+    return scene
+
+
+@dataclass
+class Render:
+    spp: int
+    seed: int
+    seconds: float          # wall time minus JIT compilation
+    compile_seconds: float  # JIT compilation during the call
+    image: np.ndarray = field(repr=False)
+
+
+def timed_render(scene, spp: int, seed: int) -> Render:
+    """One ``mi.render`` read back to NumPy; time without the kernel compilation it triggered."""
+    import mitsuba as mi
+
+    from ..render import KernelCompilation
+
+    gc.collect()  # see render.render_progressive: no plugin freed mid-trace
+    with KernelCompilation() as compiling:
+        start = time.perf_counter()
+        image = np.array(mi.render(scene, spp=spp, seed=seed))[..., :3]
+        wall = time.perf_counter() - start
+    compile_s = min(compiling.seconds, wall)
+    return Render(spp, seed, max(wall - compile_s, 1e-6), compile_s, image.astype(np.float32))
