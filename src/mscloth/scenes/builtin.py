@@ -15,6 +15,7 @@ import mitsuba as mi
 
 from ..errors import ClothError
 from .drape import drape_ply
+from .swatch import swatch_scene
 
 def T():
     """An identity transform of the active variant (resolved at call time)."""
@@ -247,8 +248,6 @@ def denim_scene(width: int = 512, height: int = 288, maps_dir: str | os.PathLike
                                      sheen_color={"type": "rgb", "value": [0.3, 0.35, 0.5]})}
     return scene
 
-
-from .swatch import swatch_scene  # noqa: E402  (it uses T from this module)
 
 SCENES = {"swatch": swatch_scene, "plane": plane_scene, "sphere": sphere_scene, "drape": drape_scene,
           "satin": satin_scene, "satin-plane": satin_plane_scene, "denim": denim_scene}

@@ -74,7 +74,8 @@ def swatch_scene(width: int = 480, height: int = 360, fabric: str = "silk-charme
     :mod:`mscloth.fabrics`) seen from ``view`` (``close``, ``arm``, ``room``) under
     ``light`` (``studio``, ``sunsky``); ``cloth`` overrides the BSDF's parameters."""
     from ..fabrics import fabric as preset
-    from .builtin import T
+
+    T = mi.ScalarTransform4f
 
     preset(fabric)  # an unknown name fails here, naming the closest presets
     if view not in VIEWS:
