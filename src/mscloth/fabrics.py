@@ -267,7 +267,7 @@ FABRICS: dict[str, Fabric] = {f.name: f for f in (
         name="denim", title="Denim", structure="woven", pattern="twill-3-1-Z",
         ends_per_cm=28, picks_per_cm=18, yarn_diameter_mm=(0.40, 0.45),
         fibre_twist_deg=-30.0, inclination_deg=12.0,
-        warp_color=(0.13, 0.22, 0.47), weft_color=(0.78, 0.74, 0.64),
+        warp_color=(0.10, 0.20, 0.52), weft_color=(0.70, 0.67, 0.60),
         roughness=0.4, thickness=2.0, specular_albedo=0.3, specular_transmittance=0.05,
         diffuse_albedo=0.6, diffuse_transmittance=0.02,
         sheen_color=(0.45, 0.55, 0.8), sheen_roughness=0.6, sheen_thickness=0.15,

@@ -1,6 +1,8 @@
 """A procedurally draped cloth: a square sheet lying over a sphere and falling in folds."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import mitsuba as mi
 import numpy as np
 
@@ -50,15 +52,18 @@ def drape_mesh(name: str = "drape", radius: float = 0.5, size: float = 1.6, fold
 
 
 def drape_ply(directory, **kw) -> str:
-    """Write :func:`drape_mesh` as a PLY file in ``directory`` (named by its parameters,
-    written once, atomically) and return its path."""
+    """Write :func:`drape_mesh` as a PLY file in ``directory`` (named by its parameters
+    and this module's source, so a changed generator never reuses an old mesh; written
+    once, atomically) and return its path."""
     import hashlib
     import os
 
     from ..atomic import atomic_path
     from ..cache import mark_used
 
-    key = hashlib.sha256(repr(sorted(kw.items())).encode()).hexdigest()[:12]
+    digest = hashlib.sha256(repr(sorted(kw.items())).encode())
+    digest.update(Path(__file__).read_bytes())
+    key = digest.hexdigest()[:12]
     path = os.path.join(str(directory), f"drape-{key}.ply")
     if not os.path.exists(path):
         with atomic_path(path) as tmp:
