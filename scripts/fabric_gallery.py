@@ -27,6 +27,8 @@ def main(argv=None) -> int:
     parser.add_argument("--light", default="studio", choices=("studio", "sunsky"))
     parser.add_argument("--res", default="240x180", help="WIDTHxHEIGHT of each picture")
     parser.add_argument("--spp", type=int, default=64)
+    parser.add_argument("--sheet-only", action="store_true",
+                        help="only compose the contact sheet from the PNGs already in --out")
     args = parser.parse_args(argv)
 
     import mitsuba as mi
@@ -48,6 +50,9 @@ def main(argv=None) -> int:
     tiles = {}
     for name in names:
         for view in args.views:
+            if args.sheet_only:
+                tiles[name, view] = Image.open(out / f"{name}-{view}.png").convert("RGB")
+                continue
             started = time.perf_counter()
             scene = load_dict(swatch_scene(width, height, name, view, args.light))
             image = mi.render(scene, spp=args.spp, seed=0)
