@@ -162,3 +162,27 @@ def test_cli_renders_with_scalar_rgb(tmp_path, lit):
     image = np.array(mi.Bitmap(str(out)))
     assert image.shape[:2] == (8, 8) and np.all(np.isfinite(image)) and image.mean() > 0.01
 
+
+def _one_error_line(err: str) -> str:
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("mscloth: error: "), err
+    return lines[0]
+
+
+def test_cli_refuses_a_variant_whose_backend_does_not_start(tmp_path, capsys, monkeypatch):
+    from mscloth.cli import main
+
+    if dr.has_backend(dr.JitBackend.CUDA):
+        pytest.skip("this machine has a CUDA device")
+    out = tmp_path / "x.exr"
+    assert main(["render", "plane", "--variant", "cuda_ad_rgb", "--out", str(out)]) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert "'cuda_ad_rgb'" in line and "no CUDA device" in line
+    # A backend failing in a way the check does not foresee: still one line, the variant named.
+    monkeypatch.setattr(variant, "variant_unavailable", lambda name: None)
+    monkeypatch.setattr(mi, "set_variant", lambda name: (_ for _ in ()).throw(ImportError("jit_init failed\nmore")))
+    assert main(["render", "plane", "--variant", "llvm_ad_rgb", "--out", str(out)]) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert "'llvm_ad_rgb'" in line and "jit_init failed" in line
+    assert not tmp_path.exists() or not any(tmp_path.iterdir())
+

@@ -28,11 +28,19 @@ def _setup(variant: str | None) -> str:
     import mitsuba as mi
 
     from . import default_variant, register
+    from .variant import variant_unavailable
 
     chosen = variant or default_variant()
     if chosen not in mi.variants():
         raise ClothError(f"unknown variant {chosen!r}: expected one of {', '.join(mi.variants())}")
-    mi.set_variant(chosen)
+    why = variant_unavailable(chosen)
+    if why is not None:
+        raise ClothError(f"variant {chosen!r} cannot run here: {why}")
+    try:
+        mi.set_variant(chosen)
+    except ImportError as error:  # a backend that fails in a way the check above missed
+        lines = str(error).strip().splitlines() or [type(error).__name__]
+        raise ClothError(f"variant {chosen!r} cannot run here: {lines[0]}") from None
     register()
     return chosen
 
