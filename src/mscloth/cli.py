@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import inspect
 import os
+import re
 import sys
 import time
 from pathlib import Path
@@ -104,11 +105,17 @@ def _load_scene_file(path: Path, res):
     except ET.ParseError as error:
         raise ClothError(f"{path}: not valid XML: {error}") from None
     except RuntimeError as error:
+        text = str(error)
         unwrapped = unwrap_plugin_error(error)
         if unwrapped is not error:
-            raise unwrapped from None
-        lines = [line for line in str(error).splitlines() if line.strip()]
-        raise ClothError(f"cannot load {path}: {lines[0] if lines else error}") from None
+            # The line is the file's only when it was loaded as it is (not re-serialised for --res).
+            where = re.search(r"\(line (\d+), col \d+\)", text) if res is None else None
+            raise type(unwrapped)(f"{path}{f' line {where.group(1)}' if where else ''}: {unwrapped}") from None
+        lines = [line for line in text.splitlines() if line.strip()]
+        # Mitsuba lists unreferenced (e.g. misspelled) properties on the lines after the first.
+        names = re.findall(r'^\s*- \w+ "([^"]+)"', text, re.MULTILINE)
+        listed = f" {', '.join(names)}" if names and lines[0].rstrip().endswith(":") else ""
+        raise ClothError(f"cannot load {path}: {lines[0] if lines else error}{listed}") from None
 
 
 def cmd_render(args) -> int:
