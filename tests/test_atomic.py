@@ -1,4 +1,5 @@
-"""Atomic writes (mscloth/atomic.py): the mode a plain write gives."""
+"""Atomic writes (mscloth/atomic.py): the mode a plain write gives, and checking an output
+folder before the work that fills it."""
 import os
 import re
 import stat
@@ -7,7 +8,8 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from mscloth.atomic import atomic_write, temporary_directory
+from mscloth.atomic import atomic_write, check_writable, temporary_directory
+from mscloth.errors import ClothError
 
 
 def _mode(path) -> int:
@@ -64,3 +66,12 @@ def test_failed_write_leaves_the_target_alone(tmp_path):
     with pytest.raises(RuntimeError):
         atomic_write(target, broken)
     assert target.read_text() == "old" and [p.name for p in tmp_path.iterdir()] == ["keep.txt"]
+
+
+def test_check_writable_names_the_users_path(tmp_path):
+    check_writable(tmp_path / "new" / "dir")
+    assert (tmp_path / "new" / "dir").is_dir() and not any((tmp_path / "new" / "dir").iterdir())
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    with pytest.raises(ClothError, match=f"cannot write {re.escape(str(blocker / 'x.exr'))}: "):
+        check_writable(blocker, target=blocker / "x.exr")

@@ -186,3 +186,12 @@ def test_cli_refuses_a_variant_whose_backend_does_not_start(tmp_path, capsys, mo
     assert "'llvm_ad_rgb'" in line and "jit_init failed" in line
     assert not tmp_path.exists() or not any(tmp_path.iterdir())
 
+
+def test_cli_demo_twice_replaces_its_own_images(tmp_path, capsys):
+    """`make demo` run twice: the demo's --out is its own folder, replaced without --force."""
+    from mscloth.cli import main
+
+    for _ in range(2):
+        assert main(["demo", "--out", str(tmp_path), "--res", "16", "--spp", "1"]) == 0
+    assert "wrote" in capsys.readouterr().out
+    assert (tmp_path / "demo.exr").is_file() and (tmp_path / "demo.png").is_file()

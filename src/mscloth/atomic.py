@@ -16,6 +16,8 @@ import secrets
 import stat
 from pathlib import Path
 
+from .errors import ClothError
+
 #: Characters of the 8 random ones in temporary names (as ``tempfile``'s; mscloth.cache
 #: recognises ``.<stem>.<8 of these><suffix>`` as the leftover of an interrupted write).
 _NAME_CHARACTERS = "abcdefghijklmnopqrstuvwxyz0123456789_"
@@ -38,6 +40,19 @@ def _create_beside(parent: Path, prefix: str, suffix: str, create) -> Path:
 def _create_file(path: Path) -> None:
     # Mode 0666: the kernel takes the umask off, as for any new file.
     os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+
+
+def check_writable(directory, target=None) -> None:
+    """Raise ClothError unless files can be created in ``directory`` (made if missing): a
+    command checks its output before spending minutes on what it would write. The error
+    names ``target`` (the user's output path) when given, else the directory."""
+    directory = Path(directory)
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        os.unlink(_create_beside(directory, ".mscloth-write-test-", "", _create_file))
+    except OSError as error:
+        what = f"write {target}" if target is not None else f"write to {directory}"
+        raise ClothError(f"cannot {what}: {error.strerror or error}") from None
 
 
 def temporary_directory(parent, prefix: str) -> Path:

@@ -49,6 +49,7 @@ def _setup(variant: str | None) -> str:
 def cmd_demo(args) -> int:
     import mitsuba as mi
 
+    from .atomic import check_writable
     from .loading import load_dict
     from .render import render_progressive, write_images
     from .scenes.demo import demo_scene
@@ -56,6 +57,9 @@ def cmd_demo(args) -> int:
     variant = _setup(args.variant)
     out = Path(args.out)
     exr = out / "demo.exr"
+    # --out is a folder of the demo's own: its demo.exr/png are replaced on every run
+    # (`make demo` twice), unlike render's --out, which names the user's file.
+    check_writable(out, target=exr)
     print(f"mscloth demo: {args.res}x{args.res}, {args.spp} spp, variant {variant}")
     started = time.perf_counter()
     scene = load_dict(demo_scene(resolution=args.res))
@@ -121,6 +125,7 @@ def _load_scene_file(path: Path, res):
 def cmd_render(args) -> int:
     import mitsuba as mi
 
+    from .atomic import check_writable
     from .loading import load_dict
     from .render import render_progressive, write_images
     from .scenes.builtin import SCENES, builtin_scene
@@ -128,14 +133,21 @@ def cmd_render(args) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".exr":
         raise ClothError(f"--out must name an .exr file (a .png is written beside it), got {out}")
+    if args.scene not in SCENES and not args.scene.lower().endswith(".xml"):
+        raise ClothError(f"unknown scene {args.scene!r}: expected one of {', '.join(SCENES)} or a .xml file")
+    if args.scene not in SCENES and not Path(args.scene).is_file():
+        raise ClothError(f"scene file {args.scene} does not exist")
+    if not args.force:
+        existing = [p for p in (out, out.with_suffix(".png")) if p.exists()]
+        if existing:
+            raise ClothError(f"{existing[0]} exists; pass --force to overwrite")
     variant = _setup(args.variant)
+    check_writable(out.parent, target=out)  # before the render, not after it
     if args.scene in SCENES:
         w, h = args.res or (512, 288)
         scene = load_dict(builtin_scene(args.scene, w, h))
-    elif args.scene.lower().endswith(".xml"):
-        scene = _load_scene_file(Path(args.scene), args.res)
     else:
-        raise ClothError(f"unknown scene {args.scene!r}: expected one of {', '.join(SCENES)} or a .xml file")
+        scene = _load_scene_file(Path(args.scene), args.res)
     w, h = scene.sensors()[0].film().size()
     print(f"mscloth render: {args.scene}, {w}x{h}, {args.spp} spp, variant {variant}", flush=True)
     started = time.perf_counter()
@@ -292,7 +304,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     demo = sub.add_parser("demo", help="render the default scene (cloth sphere and plane)")
-    demo.add_argument("--out", default="out", help="output directory (default: out)")
+    demo.add_argument("--out", default="out", help="output directory (default: out); its demo.exr and demo.png "
+                                                   "are replaced on each run")
     demo.add_argument("--spp", type=_positive_int(1, 65536), default=64, help="samples per pixel (default 64)")
     demo.add_argument("--res", type=_positive_int(16, 8192), default=512, help="image width and height (default 512)")
     demo.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
@@ -304,6 +317,7 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--res", type=_resolution_arg, default=None, help="WIDTHxHEIGHT (default: the scene's)")
     render.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
     render.add_argument("--out", default="out/render.exr", help="output EXR; a PNG is written beside it")
+    render.add_argument("--force", action="store_true", help="overwrite an existing EXR or PNG")
     render.set_defaults(func=cmd_render)
 
     scene = sub.add_parser("scene", help="write a built-in scene as Mitsuba XML to start from")
@@ -333,7 +347,8 @@ def build_parser() -> argparse.ArgumentParser:
     compare.add_argument("--budget", default="60", help="render seconds for both convergence curves together (default 60)")
     compare.add_argument("--res", type=_resolution_arg, default=None, help="WIDTHxHEIGHT (default 320x180)")
     compare.add_argument("--json", default=None, help="write the figures as JSON to this file")
-    compare.add_argument("--out", default=None, help="report directory (default out/compare-SCENE)")
+    compare.add_argument("--out", default=None, help="report directory (default out/compare-SCENE); "
+                                                     "its report is replaced on each run")
     compare.add_argument("--reference-spp", default="1024", help="spp of the brute-force reference (default 1024)")
     compare.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
     compare.set_defaults(func=cmd_compare)

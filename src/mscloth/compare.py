@@ -53,7 +53,6 @@ import math
 import os
 import platform
 import sys
-import tempfile
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -62,6 +61,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
+from .atomic import check_writable
 from .cache import default_cache_dir, mark_used
 from .errors import ClothError
 
@@ -448,17 +448,6 @@ def convergence_curve(scene, label: str, seed0: int, max_spp: int, budget: float
 
 
 # --------------------------------------------------------------------------- the comparison
-
-def check_writable(directory: Path) -> None:
-    """Raise ClothError unless files can be created in ``directory`` (made if missing)."""
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=directory, prefix=".mscloth-write-test-")
-        os.close(fd)
-        os.unlink(tmp)
-    except OSError as error:
-        raise ClothError(f"cannot write to {directory}: {error.strerror or error}") from None
-
 
 def _region_figures(points_ms, points_bf, spp_ms_chosen, floor) -> dict:
     out = {}
