@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 from . import __version__
-from .errors import ClothError
+from .errors import ClothError, ResolutionError
 
 
 def _positive_int(low: int, high: int):
@@ -208,7 +208,17 @@ def cmd_maps(args) -> int:
             raise ClothError(f"{existing[0]} exists; pass --force to overwrite")
     started = time.perf_counter()
     print(f"mscloth maps: {args.pattern} at {resolution} texels along u ...", flush=True)
-    maps = generate_maps(pattern, resolution, **params)
+    try:
+        maps = generate_maps(pattern, resolution, **params)
+    except ResolutionError as error:
+        if error.low is None:
+            raise
+        # In the user's terms: the flag, and the values it can take for this pattern.
+        given = f"got {args.res}" if args.res else f"its default {resolution} does not fit"
+        if error.low > error.high:
+            raise ClothError(f"no --res fits {args.pattern}: {error.reason}") from None
+        raise ClothError(f"--res must be in [{error.low}, {error.high}] for {args.pattern}, {given} "
+                         f"({error.reason})") from None
     generated = time.perf_counter() - started
     maps.save(out, overwrite=args.force)
     previews = write_previews(maps, out, overwrite=args.force)

@@ -10,9 +10,10 @@ import re
 
 import mitsuba as mi
 
-from .errors import ClothError, MapsError, ParameterError, PatternError
+from .errors import ClothError, MapsError, ParameterError, PatternError, ResolutionError
 
-_OUR_ERRORS = {cls.__name__: cls for cls in (ClothError, MapsError, ParameterError, PatternError)}
+_OUR_ERRORS = {cls.__name__: cls for cls in (ClothError, MapsError, ParameterError, PatternError,
+                                            ResolutionError)}
 _PATTERN = re.compile(r"^(?:[\w.]*\.)?(%s): (.*)$" % "|".join(_OUR_ERRORS), re.MULTILINE)
 
 
