@@ -77,3 +77,52 @@ def test_maps_directory_is_used(tmp_path):
 def test_wrong_type():
     with pytest.raises(ParameterError, match="'roughness'.*number"):
         load_dict({"type": "cloth", "roughness": "rough"})
+
+
+def test_misspelled_parameter_is_named_with_the_closest_one():
+    with pytest.raises(ParameterError, match=r"unknown parameter 'sheen_thicknes': did you mean 'sheen_thickness'\?"):
+        load_dict({"type": "cloth", "sheen_thicknes": 0.3})
+    with pytest.raises(ParameterError, match=r"unknown parameter 'Roughness': did you mean 'roughness'\?"):
+        load_dict({"type": "cloth", "Roughness": 0.3})
+    # Nothing close: the names it takes instead.
+    with pytest.raises(ParameterError, match=r"unknown parameter 'glitter': expected one of pattern, resolution, "):
+        load_dict({"type": "cloth", "glitter": 1.0})
+
+
+def test_suggestions_come_from_the_documented_parameters():
+    import re
+
+    from mscloth.bsdf.cloth import DOCSTRING
+    from mscloth.bsdf.parameters import PARAMETER_NAMES
+
+    documented = set()
+    for row in re.findall(r"^   \* - (.+)$", DOCSTRING, re.MULTILINE):
+        documented.update(name.strip() for name in row.split(","))
+    documented.discard("Parameter")
+    assert documented == set(PARAMETER_NAMES)
+    # Every documented parameter is taken as it is spelled.
+    load_dict({"type": "cloth", "pattern": "plain", "resolution": 16, "multiscale": False, "visibility": False})
+
+
+def test_cli_names_a_misspelled_parameter_in_a_scene_file(tmp_path, capsys):
+    from mscloth.cli import main
+
+    scene = tmp_path / "typo.xml"
+    scene.write_text('<scene version="3.0.0">\n'
+                     '    <shape type="rectangle">\n'
+                     '        <bsdf type="cloth">\n'
+                     '            <float name="sheen_thicknes" value="0.3"/>\n'
+                     '        </bsdf>\n'
+                     '    </shape>\n'
+                     '</scene>\n')
+    assert main(["render", str(scene), "--out", str(tmp_path / "x.exr")]) == 2
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(lines) == 1, lines
+    assert f"{scene} line 3: " in lines[0] and "'sheen_thicknes'" in lines[0] and "'sheen_thickness'" in lines[0]
+    # Another plugin's misspelling: Mitsuba's message, with the name it lists on its next line.
+    scene.write_text(scene.read_text().replace('type="cloth"', 'type="diffuse"').replace(
+        'float name="sheen_thicknes" value="0.3"', 'rgb name="reflectanc" value="0.3"'))
+    assert main(["render", str(scene), "--out", str(tmp_path / "x.exr")]) == 2
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].endswith('of type "diffuse": reflectanc'), lines
+    assert not (tmp_path / "x.exr").exists()

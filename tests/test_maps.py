@@ -288,7 +288,7 @@ def test_albedo_per_yarn(plain_maps):
     (dict(yarn_height=float("nan")), "yarn_height"),
     (dict(fibre_twist_deg=120.0), "fibre_twist_deg must be in [-90, 90]"),
     (dict(fibre_twist_deg="30"), "fibre_twist_deg"),
-    (dict(resolution=3), "resolution H must be in [4,"),
+    (dict(resolution=3), "resolution (texels along u) must be in [4, 16384]"),
     (dict(resolution=(64, 64, 3)), "resolution must be"),
     (dict(warp_colors=[[1, 0, 0]]), "warp_colors"),
     (dict(weft_colors=[2.0, 0, 0]), "weft_colors values must be in [0, 1]"),

@@ -122,3 +122,76 @@ def test_cli_rejects_bad_arguments(tmp_path):
     assert result.returncode != 0
     assert "--spp" in result.stderr and "[1, 65536]" in result.stderr
     assert not any(tmp_path.iterdir())
+
+
+# A cloth square seen head-on under a sky (clothpath hands the BSDF a zero direction when the
+# sky is its only light: scalar floats raised ZeroDivisionError on it), and the same square
+# over a floor in the sun (shadow rays from the floor cross the cloth's gaps, then miss: a
+# scalar miss was asked for its BSDF, a null dereference).
+_SCALAR_SCENE = """<scene version="3.0.0">
+    <integrator type="clothpath"/>
+    <sensor type="perspective">
+        <float name="fov" value="40"/>
+        <transform name="to_world"><lookat origin="0, 0, 3" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="8"/><integer name="height" value="8"/></film>
+    </sensor>
+    <emitter type="constant"><rgb name="radiance" value="0.5"/></emitter>
+    {sun}
+    <shape type="rectangle">
+        <transform name="to_world"><scale value="0.5"/><translate z="0.5"/></transform>
+        <bsdf type="cloth"><integer name="resolution" value="16"/></bsdf>
+    </shape>
+    {floor}
+</scene>
+"""
+
+
+@pytest.mark.parametrize("lit", ["sky", "sun"])
+def test_cli_renders_with_scalar_rgb(tmp_path, lit):
+    """scalar_rgb is default_variant()'s last fallback: `mscloth render` works there."""
+    sun = floor = ""
+    if lit == "sun":
+        sun = '<emitter type="directional"><vector name="direction" value="0, 0, -1"/></emitter>'
+        floor = '<shape type="rectangle"><bsdf type="diffuse"/></shape>'
+    scene = tmp_path / "scene.xml"
+    scene.write_text(_SCALAR_SCENE.format(sun=sun, floor=floor))
+    out = tmp_path / "scalar.exr"
+    result = subprocess.run([sys.executable, "-m", "mscloth", "render", str(scene), "--variant", "scalar_rgb",
+                             "--spp", "2", "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    image = np.array(mi.Bitmap(str(out)))
+    assert image.shape[:2] == (8, 8) and np.all(np.isfinite(image)) and image.mean() > 0.01
+
+
+def _one_error_line(err: str) -> str:
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("mscloth: error: "), err
+    return lines[0]
+
+
+def test_cli_refuses_a_variant_whose_backend_does_not_start(tmp_path, capsys, monkeypatch):
+    from mscloth.cli import main
+
+    if dr.has_backend(dr.JitBackend.CUDA):
+        pytest.skip("this machine has a CUDA device")
+    out = tmp_path / "x.exr"
+    assert main(["render", "plane", "--variant", "cuda_ad_rgb", "--out", str(out)]) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert "'cuda_ad_rgb'" in line and "no CUDA device" in line
+    # A backend failing in a way the check does not foresee: still one line, the variant named.
+    monkeypatch.setattr(variant, "variant_unavailable", lambda name: None)
+    monkeypatch.setattr(mi, "set_variant", lambda name: (_ for _ in ()).throw(ImportError("jit_init failed\nmore")))
+    assert main(["render", "plane", "--variant", "llvm_ad_rgb", "--out", str(out)]) == 2
+    line = _one_error_line(capsys.readouterr().err)
+    assert "'llvm_ad_rgb'" in line and "jit_init failed" in line
+    assert not tmp_path.exists() or not any(tmp_path.iterdir())
+
+
+def test_cli_demo_twice_replaces_its_own_images(tmp_path, capsys):
+    """`make demo` run twice: the demo's --out is its own folder, replaced without --force."""
+    from mscloth.cli import main
+
+    for _ in range(2):
+        assert main(["demo", "--out", str(tmp_path), "--res", "16", "--spp", "1"]) == 0
+    assert "wrote" in capsys.readouterr().out
+    assert (tmp_path / "demo.exr").is_file() and (tmp_path / "demo.png").is_file()

@@ -193,3 +193,25 @@ def test_drawdown_array_directly():
     maps = generate_maps(np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1]]), 96)
     assert maps.resolution == (96, 96)
     assert maps.meta["drawdown"] == [[1, 0, 0], [0, 1, 0], [0, 0, 1]]
+
+
+def test_cli_maps_says_which_res_the_pattern_takes(tmp_path, capsys):
+    """8452.wif is 84 ends by 100 picks, 1.19 times as tall as wide: at 2 texels per thread
+    --res (the width) must be in [168, 13762], whichever side runs out first."""
+    from pathlib import Path
+
+    from mscloth.cli import main
+
+    wif = str(Path(__file__).resolve().parents[2] / "shared" / "data" / "wif" / "8452.wif")
+    for res, why in (("128", "its height would be 152 texels"), ("13763", "at most 16384 texels")):
+        assert main(["maps", wif, "--res", res, "--out", str(tmp_path / "m")]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"mscloth: error: --res must be in [168, 13762] for {wif}, got {res} (")
+        assert why in err and err.count("\n") == 1
+    # The range is exact: its low end generates, one past either end does not.
+    pattern = named_pattern(wif)
+    assert generate_maps(pattern, 168).resolution == (200, 168)
+    for res in (167, 13763):
+        with pytest.raises(ParameterError, match=r"resolution \(texels along u\) must be in \[168, 13762\]"):
+            generate_maps(pattern, res)
+    assert not (tmp_path / "m").exists()

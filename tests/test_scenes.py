@@ -222,3 +222,56 @@ def test_point_shading_after_rough_bounces_keeps_the_image():
     for other in (cone, brute):
         sigma = np.sqrt(point.var(ddof=1) / len(point) + other.var(ddof=1) / len(other))
         assert abs(point.mean() - other.mean()) < 4.0 * sigma + 0.01 * other.mean(), (point.mean(), other.mean(), sigma)
+
+
+def test_render_refuses_to_overwrite_without_force(tmp_path, capsys):
+    """As `mscloth scene` and `mscloth maps`: an existing EXR, or the PNG beside it, is only
+    replaced with --force (and the refusal comes before the render)."""
+    from mscloth.cli import main
+
+    out = tmp_path / "plane.exr"
+    args = ["render", "plane", "--spp", "1", "--res", "16x9", "--out", str(out)]
+    assert main(args) == 0
+    png = out.with_suffix(".png")
+    before = png.read_bytes()
+    capsys.readouterr()
+    for existing in (out, png):
+        assert main(args) == 2
+        captured = capsys.readouterr()
+        assert captured.err.strip() == f"mscloth: error: {existing} exists; pass --force to overwrite"
+        assert "mscloth render:" not in captured.out and png.read_bytes() == before
+        if existing == out:
+            out.unlink()  # the PNG alone still blocks
+    assert main(args + ["--force"]) == 0
+    assert out.is_file() and out.with_suffix(".png").read_bytes() != b""
+
+
+@pytest.mark.parametrize("command", ["render", "demo"])
+@pytest.mark.parametrize("why", ["a file in the way", "permission denied"])
+def test_unwritable_out_fails_before_rendering_and_names_it(tmp_path, capsys, monkeypatch, command, why):
+    import errno
+
+    import mscloth.atomic
+    from mscloth.cli import main
+
+    if why == "a file in the way":
+        blocker = tmp_path / "a_file"
+        blocker.write_text("x")
+        folder = blocker / "sub"
+    else:
+        folder = tmp_path / "read-only"
+
+        def refuse(path):
+            raise PermissionError(errno.EACCES, "Permission denied", str(path))
+
+        monkeypatch.setattr(mscloth.atomic, "_create_file", refuse)  # root ignores chmod 0500
+    if command == "render":
+        out = folder / "x.exr"
+        args = ["render", "plane", "--spp", "1", "--res", "16x9", "--out", str(out)]
+    else:
+        out = folder / "demo.exr"
+        args = ["demo", "--spp", "1", "--res", "16", "--out", str(folder)]
+    assert main(args) == 2
+    captured = capsys.readouterr()
+    assert captured.err.startswith(f"mscloth: error: cannot write {out}: ") and captured.err.count("\n") == 1
+    assert "samples/s" not in captured.out and "render [" not in captured.err

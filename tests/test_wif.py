@@ -423,10 +423,15 @@ def test_truncated_real_file(tmp_path):
     p.write_text("\n".join(lines[:45]) + "\n")          # header only
     with pytest.raises(PatternError, match=r"^2229\.wif: \[THREADING\] line 45: section is empty"):
         read_wif(p)
-    p.write_text("\n".join(lines[:72]) + "\n")          # cut inside [TREADLING]: picks 3.. lift nothing
-    d = read_wif(p)
-    np.testing.assert_array_equal(d.drawdown[2:], False)
-    np.testing.assert_array_equal(d.drawdown[:2], reference_drawdown(WIF_DIR / "2229.wif")[:2])
+    # Cut inside [TREADLING] (or right after it), which [CONTENTS] lists, as it lists the
+    # colour sections that never come: read as it is, picks 3.. would float and the warp
+    # turn white.
+    assert lines[69] == "[TREADLING]" and lines[14] == "WARP COLORS=yes" and lines[94] == "[WARP COLORS]"
+    for cut in (72, 94):
+        p.write_text("\n".join(lines[:cut]) + "\n")
+        with pytest.raises(PatternError, match=rf"^2229\.wif: \[TREADLING\] line {cut}: the file ends here, "
+                                               r"but \[CONTENTS\] line 15 lists \[WARP COLORS\].*truncated"):
+            read_wif(p)
 
 
 def test_truncated_inline_cut_mid_colour():
@@ -609,3 +614,34 @@ def test_implausible_counts_refused():
                  "beyond the supported")
     text = PLAIN.replace("[WEFT]\nThreads=2\n", "").replace("[TREADLING]\n1=1", "[TREADLING]\n123456789=1")
     expect_error(text, "big.wif", "[TREADLING] line", "beyond the supported")
+
+
+@needs_data
+def test_thread_colour_without_colour_table_warns_once_and_weaves(tmp_path):
+    """[WARP]/[WEFT] Color= names a palette colour, but there is no [COLOR TABLE] (nor colour
+    sections): weaving programs open such files, and so do we, with white and one warning."""
+    lines = (WIF_DIR / "2229.wif").read_text().splitlines()
+    dropped = ("COLOR TABLE=", "WARP COLORS=", "WEFT COLORS=")
+    kept, section = [], None
+    for line in lines:
+        if line.startswith("["):
+            section = line
+        if section in ("[COLOR TABLE]", "[WARP COLORS]", "[WEFT COLORS]") or line.startswith(dropped):
+            continue
+        kept.append(line)
+        if line == "Threads=24":
+            kept.append("Color=1")          # in [WARP] and in [WEFT]
+    p = tmp_path / "nocolours.wif"
+    p.write_text("\n".join(kept) + "\n")
+    with pytest.warns(UserWarning) as caught:
+        d = read_wif(p)
+    assert len(caught) == 1
+    message = str(caught[0].message)
+    assert message.startswith("nocolours.wif: [WARP] line ") and "[WEFT] line" in message
+    assert "no [COLOR TABLE]" in message
+    np.testing.assert_array_equal(d.drawdown, reference_drawdown(WIF_DIR / "2229.wif"))
+    assert d.warp_colors is None or np.allclose(d.warp_colors, 1.0)
+    assert d.weft_colors is None or np.allclose(d.weft_colors, 1.0)
+    # With a table, a colour it lacks is still an error.
+    with_table = "\n".join(kept).replace("[WARP]", "[COLOR TABLE]\n1=0,101,0\n[WARP]").replace("Color=1", "Color=3")
+    expect_error(with_table, "t.wif", "[WARP] line", "colour 3 is not in [COLOR TABLE]")

@@ -32,12 +32,21 @@ def setup_mitsuba(variant: str | None = None) -> str:
     of :mod:`mscloth.evaluation`."""
     import mitsuba as mi
 
+    from .variant import variant_unavailable
+
     if variant is None:
         variant = set_default_variant()
     else:
         if variant not in mi.variants():
             raise ClothError(f"unknown variant {variant!r}: expected one of {', '.join(mi.variants())}")
-        mi.set_variant(variant)
+        why = variant_unavailable(variant)
+        if why is not None:
+            raise ClothError(f"variant {variant!r} cannot run here: {why}")
+        try:
+            mi.set_variant(variant)
+        except ImportError as error:  # a backend that fails in a way the check above missed
+            lines = str(error).strip().splitlines() or [type(error).__name__]
+            raise ClothError(f"variant {variant!r} cannot run here: {lines[0]}") from None
     register()
     return variant
 

@@ -4,13 +4,14 @@ from __future__ import annotations
 import argparse
 import inspect
 import os
+import re
 import sys
 import time
 import warnings
 from pathlib import Path
 
 from . import __version__, setup_mitsuba
-from .errors import ClothError
+from .errors import ClothError, ResolutionError
 
 
 def _positive_int(low: int, high: int):
@@ -28,6 +29,7 @@ def _positive_int(low: int, high: int):
 def cmd_demo(args) -> int:
     import mitsuba as mi
 
+    from .atomic import check_writable
     from .loading import load_dict
     from .render import KernelCompilation, render_progressive, throughput_text, write_images
     from .scenes.demo import demo_scene
@@ -35,6 +37,9 @@ def cmd_demo(args) -> int:
     variant = setup_mitsuba(args.variant)
     out = Path(args.out)
     exr = out / "demo.exr"
+    # --out is a folder of the demo's own: its demo.exr/png are replaced on every run
+    # (`make demo` twice), unlike render's --out, which names the user's file.
+    check_writable(out, target=exr)
     print(f"mscloth demo: {args.res}x{args.res}, {args.spp} spp, variant {variant}")
     scene = load_dict(demo_scene(resolution=args.res))
     started = time.perf_counter()
@@ -63,7 +68,7 @@ def _load_scene_file(path: Path, res):
 
     import mitsuba as mi
 
-    from .loading import load_file, name_xml_cloths, unwrap_plugin_error
+    from .loading import name_xml_cloths, unwrap_plugin_error
     from .scene_checks import warn_about_scene
 
     if not path.is_file():
@@ -72,7 +77,9 @@ def _load_scene_file(path: Path, res):
         tree = ET.parse(path)
         named = name_xml_cloths(tree.getroot())
         if res is None and not named:
-            return load_file(path)  # checked there
+            scene = mi.load_file(str(path))
+            warn_about_scene(scene)
+            return scene
         if res is not None:
             films = tree.getroot().findall(".//film")
             if not films:
@@ -95,11 +102,17 @@ def _load_scene_file(path: Path, res):
     except ET.ParseError as error:
         raise ClothError(f"{path}: not valid XML: {error}") from None
     except RuntimeError as error:
+        text = str(error)
         unwrapped = unwrap_plugin_error(error)
         if unwrapped is not error:
-            raise unwrapped from None
-        lines = [line for line in str(error).splitlines() if line.strip()]
-        raise ClothError(f"cannot load {path}: {lines[0] if lines else error}") from None
+            # The line is the file's only when it was loaded as it is (not re-serialised for --res).
+            where = re.search(r"\(line (\d+), col \d+\)", text) if res is None else None
+            raise type(unwrapped)(f"{path}{f' line {where.group(1)}' if where else ''}: {unwrapped}") from None
+        lines = [line for line in text.splitlines() if line.strip()]
+        # Mitsuba lists unreferenced (e.g. misspelled) properties on the lines after the first.
+        names = re.findall(r'^\s*- \w+ "([^"]+)"', text, re.MULTILINE)
+        listed = f" {', '.join(names)}" if names and lines[0].rstrip().endswith(":") else ""
+        raise ClothError(f"cannot load {path}: {lines[0] if lines else error}{listed}") from None
     warn_about_scene(scene)
     return scene
 
@@ -107,6 +120,7 @@ def _load_scene_file(path: Path, res):
 def cmd_render(args) -> int:
     import mitsuba as mi
 
+    from .atomic import check_writable
     from .loading import load_dict
     from .render import KernelCompilation, render_progressive, throughput_text, write_images
     from .scenes.builtin import SCENES, builtin_scene
@@ -114,19 +128,26 @@ def cmd_render(args) -> int:
     out = Path(args.out)
     if out.suffix.lower() != ".exr":
         raise ClothError(f"--out must name an .exr file (a .png is written beside it), got {out}")
-    variant = setup_mitsuba(args.variant)
+    if args.scene not in SCENES and not args.scene.lower().endswith(".xml"):
+        raise ClothError(f"unknown scene {args.scene!r}: expected one of {', '.join(SCENES)} or a .xml file")
+    if args.scene not in SCENES and not Path(args.scene).is_file():
+        raise ClothError(f"scene file {args.scene} does not exist")
+    if not args.force:
+        existing = [p for p in (out, out.with_suffix(".png")) if p.exists()]
+        if existing:
+            raise ClothError(f"{existing[0]} exists; pass --force to overwrite")
     options = {name: value for name, value in (("fabric", args.fabric), ("view", args.view),
                                                  ("light", args.light)) if value is not None}
     if options and args.scene != "swatch":
         raise ClothError(f"--{next(iter(options))} applies to the swatch scene only "
                          f"(mscloth render swatch --fabric NAME), not to {args.scene!r}")
+    variant = setup_mitsuba(args.variant)
+    check_writable(out.parent, target=out)  # before the render, not after it
     if args.scene in SCENES:
         w, h = args.res or ((480, 360) if args.scene == "swatch" else (512, 288))
         scene = load_dict(builtin_scene(args.scene, w, h, **options))
-    elif args.scene.lower().endswith(".xml"):
-        scene = _load_scene_file(Path(args.scene), args.res)
     else:
-        raise ClothError(f"unknown scene {args.scene!r}: expected one of {', '.join(SCENES)} or a .xml file")
+        scene = _load_scene_file(Path(args.scene), args.res)
     w, h = scene.sensors()[0].film().size()
     print(f"mscloth render: {args.scene}, {w}x{h}, {args.spp} spp, variant {variant}", flush=True)
     started = time.perf_counter()
@@ -202,7 +223,17 @@ def cmd_maps(args) -> int:
             raise ClothError(f"{existing[0]} exists; pass --force to overwrite")
     started = time.perf_counter()
     print(f"mscloth maps: {args.pattern} at {resolution} texels along u ...", flush=True)
-    maps = preset.maps(resolution) if args.fabric else generate_maps(pattern, resolution, **params)
+    try:
+        maps = preset.maps(resolution) if args.fabric else generate_maps(pattern, resolution, **params)
+    except ResolutionError as error:
+        if error.low is None:
+            raise
+        # In the user's terms: the flag, and the values it can take for this pattern.
+        given = f"got {args.res}" if args.res else f"its default {resolution} does not fit"
+        if error.low > error.high:
+            raise ClothError(f"no --res fits {args.pattern}: {error.reason}") from None
+        raise ClothError(f"--res must be in [{error.low}, {error.high}] for {args.pattern}, {given} "
+                         f"({error.reason})") from None
     generated = time.perf_counter() - started
     maps.save(out, overwrite=args.force)
     previews = write_previews(maps, out, overwrite=args.force)
@@ -310,7 +341,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     demo = sub.add_parser("demo", help="render the default scene (cloth sphere and plane)")
-    demo.add_argument("--out", default="out", help="output directory (default: out)")
+    demo.add_argument("--out", default="out", help="output directory (default: out); its demo.exr and demo.png "
+                                                   "are replaced on each run")
     demo.add_argument("--spp", type=_positive_int(1, 65536), default=64, help="samples per pixel (default 64)")
     demo.add_argument("--res", type=_positive_int(16, 8192), default=512, help="image width and height (default 512)")
     demo.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
@@ -328,6 +360,7 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--res", type=_resolution_arg, default=None, help="WIDTHxHEIGHT (default: the scene's)")
     render.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
     render.add_argument("--out", default="out/render.exr", help="output EXR; a PNG is written beside it")
+    render.add_argument("--force", action="store_true", help="overwrite an existing EXR or PNG")
     render.set_defaults(func=cmd_render)
 
     scene = sub.add_parser("scene", help="write a built-in scene as Mitsuba XML to start from")
@@ -362,7 +395,8 @@ def build_parser() -> argparse.ArgumentParser:
     compare.add_argument("--budget", default="60", help="render seconds for both convergence curves together (default 60)")
     compare.add_argument("--res", type=_resolution_arg, default=None, help="WIDTHxHEIGHT (default 320x180)")
     compare.add_argument("--json", default=None, help="write the figures as JSON to this file")
-    compare.add_argument("--out", default=None, help="report directory (default out/compare-SCENE)")
+    compare.add_argument("--out", default=None, help="report directory (default out/compare-SCENE); "
+                                                     "its report is replaced on each run")
     compare.add_argument("--reference-spp", default="1024", help="spp of the brute-force reference (default 1024)")
     compare.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
     compare.set_defaults(func=cmd_compare)

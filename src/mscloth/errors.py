@@ -9,6 +9,15 @@ class ParameterError(ClothError):
     """A plugin parameter is missing, of the wrong type or out of range."""
 
 
+class ResolutionError(ParameterError):
+    """A tile resolution a pattern's maps cannot have. ``low``, ``high``: the texels along u
+    that would do (None when an exact (H, W) was asked for); ``reason``: what bounds them."""
+
+    def __init__(self, message: str, low: int | None = None, high: int | None = None, reason: str = ""):
+        super().__init__(message)
+        self.low, self.high, self.reason = low, high, reason
+
+
 class PatternError(ClothError):
     """A pattern name, draft or pattern file could not be turned into cloth maps."""
 

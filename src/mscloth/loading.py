@@ -12,10 +12,11 @@ import re
 
 import mitsuba as mi
 
-from .errors import ClothError, MapsError, ParameterError, PatternError
+from .errors import ClothError, MapsError, ParameterError, PatternError, ResolutionError
 from .scene_checks import warn_about_scene
 
-_OUR_ERRORS = {cls.__name__: cls for cls in (ClothError, MapsError, ParameterError, PatternError)}
+_OUR_ERRORS = {cls.__name__: cls for cls in (ClothError, MapsError, ParameterError, PatternError,
+                                            ResolutionError)}
 _PATTERN = re.compile(r"^(?:[\w.]*\.)?(%s): (.*)$" % "|".join(_OUR_ERRORS), re.MULTILINE)
 
 

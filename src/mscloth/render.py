@@ -12,8 +12,10 @@ import mitsuba as mi
 from .atomic import atomic_path
 
 
-def progress_bar(done: int, total: int, started: float, label: str, stream=sys.stderr) -> None:
-    """One-line progress bar, redrawn in place."""
+def progress_bar(done: int, total: int, started: float, label: str, stream=None) -> None:
+    """One-line progress bar, redrawn in place (on ``stream``, default: sys.stderr as it is
+    now, not as it was at import: the CLI also runs in-process, under redirected streams)."""
+    stream = sys.stderr if stream is None else stream
     width = 30
     filled = int(width * done / max(total, 1))
     elapsed = time.perf_counter() - started

@@ -70,6 +70,24 @@ def _backend_works(backend_name: str) -> bool:
         return False
 
 
+def variant_unavailable(variant: str) -> str | None:
+    """Why ``variant`` cannot run on this machine (one line), or None if it can.
+
+    ``mi.set_variant`` of a JIT variant whose backend does not start raises an ImportError
+    about uninitialised thread state; this says which backend is missing instead.
+    """
+    if variant.startswith("cuda_") and not _backend_works("CUDA"):
+        return "no CUDA device works on this machine (Dr.Jit's CUDA backend did not start)"
+    if variant.startswith("llvm_"):
+        path = configure_llvm()
+        if path is None:
+            return (f"no libLLVM >= {MIN_LLVM_MAJOR} found (apt-get install libllvm19, "
+                    "or set DRJIT_LIBLLVM_PATH)")
+        if not _backend_works("LLVM"):
+            return f"Dr.Jit's LLVM backend did not start with {path}"
+    return None
+
+
 def default_variant() -> str:
     """The variant mscloth renders with on this machine.
 

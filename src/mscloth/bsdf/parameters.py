@@ -5,6 +5,7 @@ is clamped silently.
 """
 from __future__ import annotations
 
+import difflib
 import math
 from dataclasses import dataclass
 
@@ -56,6 +57,22 @@ BOOL_PARAMETERS = {
     "unbiased_ccv": (False, "per-cluster base of the control variates (less noise below a tile, 8x the SAT memory, ~2x the time)"),
     "parallax": (False, "shift lookups to where the view ray meets the height field (not reciprocal)"),
 }
+
+#: Every parameter the plugin reads: those of the table in its docstring (``cloth.DOCSTRING``).
+PARAMETER_NAMES = ("pattern", "resolution", *FLOAT_PARAMETERS, *SPECTRUM_PARAMETERS, *BOOL_PARAMETERS,
+                   *INT_PARAMETERS)
+
+
+def check_parameter_names(names) -> None:
+    """Raise ParameterError naming the first of ``names`` the plugin does not read, with the
+    closest parameter it does (Mitsuba's own 'unreferenced property' error is several lines,
+    and comes only after the plugin has been built)."""
+    for name in names:
+        if name in PARAMETER_NAMES:
+            continue
+        close = difflib.get_close_matches(name, PARAMETER_NAMES, n=1, cutoff=0.6)
+        hint = f"did you mean '{close[0]}'?" if close else f"expected one of {', '.join(PARAMETER_NAMES)}"
+        raise ParameterError(f"cloth: unknown parameter '{name}': {hint}")
 
 
 @dataclass
@@ -142,6 +159,7 @@ def read_parameters(props) -> ClothParameters:
     """Read every ``cloth`` parameter from Mitsuba Properties, validating each. A ``fabric``
     supplies the defaults of the others (and the maps when no ``pattern`` is given); its
     UVs are read in metres unless ``uv_unit`` or ``uv_scale`` says otherwise."""
+    check_parameter_names(props.keys())
     preset = None
     if "fabric" in props:
         from ..fabrics import fabric

@@ -235,10 +235,11 @@ def hemisphere_bins(w, n: int):
     ay = dr.floor(y)
     fx = x - ax
     fy = y - ay
-    a0 = mi.UInt32(dr.clip(ax, 0, n - 1))
-    a1 = mi.UInt32(dr.clip(ax + 1, 0, n - 1))
-    b0 = mi.UInt32(dr.clip(ay, 0, n - 1))
-    b1 = mi.UInt32(dr.clip(ay + 1, 0, n - 1))
+
+    def index(v):  # a NaN direction (wi = -wo) reads bin 0: scalar variants raise on UInt32(NaN)
+        return mi.UInt32(dr.clip(dr.select(dr.isnan(v), 0.0, v), 0, n - 1))
+
+    a0, a1, b0, b1 = index(ax), index(ax + 1), index(ay), index(ay + 1)
     bins = (b0 * n + a0, b0 * n + a1, b1 * n + a0, b1 * n + a1)
     weights = ((1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy)
     return bins, weights

@@ -29,13 +29,13 @@ import json
 import math
 import os
 import platform
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 from .. import __version__, setup_mitsuba
+from ..atomic import check_writable
 from ..errors import ClothError
 from .metrics import RELMSE_EPS, flip_map, relmse_map
 from .references import reference_image
@@ -95,17 +95,6 @@ def check_evaluation_extra() -> None:
     if missing:
         raise ClothError(f"mscloth compare needs {' and '.join(missing)}, not installed: "
                          "pip install 'mscloth[evaluation]'")
-
-
-def check_writable(directory: Path) -> None:
-    """Raise ClothError unless files can be created in ``directory`` (made if missing)."""
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=directory, prefix=".mscloth-write-test-")
-        os.close(fd)
-        os.unlink(tmp)
-    except OSError as error:
-        raise ClothError(f"cannot write to {directory}: {error.strerror or error}") from None
 
 
 def _region_figures(points_ms, points_bf, spp_ms_chosen, floor) -> dict:

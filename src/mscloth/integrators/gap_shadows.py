@@ -52,11 +52,11 @@ def shadow_transmittance(scene, si, target, cone_width, cone_spread, active):
         hit_si.wi = hit_si.to_local(-d)
         width = fp.cone_width(cone_width, cone_spread, travelled + hit_si.t)
         hit_si.duv_dx, hit_si.duv_dy = fp.cone_footprint(width, d, hit_si.n, hit_si.dp_du, hit_si.dp_dv)
-        bsdf = hit_si.bsdf()
         if jit:
-            crossing = dr.dispatch(bsdf, _gap_transmission, hit_si, hit)
+            crossing = dr.dispatch(hit_si.bsdf(), _gap_transmission, hit_si, hit)
         else:
-            crossing = _gap_transmission(bsdf, hit_si, hit) if hit else mi.Float(1.0)
+            # A scalar miss has no shape: asking it for a BSDF dereferences null.
+            crossing = _gap_transmission(hit_si.bsdf(), hit_si, hit) if hit else mi.Float(1.0)
         trans = dr.select(hit, trans * crossing, trans)
         crossings = dr.select(hit, crossings + 1, crossings)
         going = hit & (trans > 0.0) & (crossings < MAX_CROSSINGS)

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ParameterError
+from ..errors import ParameterError, ResolutionError
 
 
 def real_in(name: str, value: Any, lo: float, hi: float, lo_open: bool, hi_open: bool) -> float:
@@ -50,7 +50,7 @@ def tile_resolution(resolution: Any, aspect: float, counts: tuple[int, int],
     ``counts`` (rows, columns) of threads or stitches, named by ``kinds``."""
     if isinstance(resolution, Integral) and not isinstance(resolution, bool):
         w = int(resolution)
-        pair = (max(1, int(round(w * aspect))), w)
+        pair = _height_width(w, aspect)
     elif (isinstance(resolution, (tuple, list)) and len(resolution) == 2
           and all(isinstance(n, Integral) and not isinstance(n, bool) for n in resolution)):
         pair = (int(resolution[0]), int(resolution[1]))
@@ -59,7 +59,43 @@ def tile_resolution(resolution: Any, aspect: float, counts: tuple[int, int],
                              f"ints, got {resolution!r}")
     for side, n, count, kind in (("H", pair[0], counts[0], kinds[0]), ("W", pair[1], counts[1], kinds[1])):
         lo = min_texels * count
-        if not lo <= n <= MAX_RESOLUTION:
-            raise ParameterError(f"resolution {side} must be in [{lo}, {MAX_RESOLUTION}] "
-                                 f"({min_texels} texels for each of the {count} {kind}), got {n}")
+        if lo <= n <= MAX_RESOLUTION:
+            continue
+        need = f"{min_texels} texels for each of the {count} {kind}"
+        if isinstance(resolution, tuple | list):
+            raise ResolutionError(f"resolution {side} must be in [{lo}, {MAX_RESOLUTION}] ({need}), got {n}")
+        # An int is the width only: say which widths work, whichever side failed (a width
+        # in range whose height, at the tile's aspect, is not, is no help to anyone).
+        low, high = width_range(aspect, counts, min_texels)
+        bound = f"it needs {need}" if n < lo else f"a tile side has at most {MAX_RESOLUTION} texels"
+        reason = bound if side == "W" else \
+            f"its height would be {n} texels at the tile's aspect H/W = {aspect:.3g}; {bound}"
+        if low > high:
+            raise ResolutionError(f"no resolution (texels along u) fits this tile: {reason}", low, high, reason)
+        raise ResolutionError(f"resolution (texels along u) must be in [{low}, {high}] for this tile, "
+                              f"got {w}: {reason}", low, high, reason)
     return pair
+
+
+def _height_width(w: int, aspect: float) -> tuple[int, int]:
+    """(H, W) of a tile ``w`` texels wide whose height / width is ``aspect``."""
+    return max(1, int(round(w * aspect))), w
+
+
+def width_range(aspect: float, counts: tuple[int, int], min_texels: int) -> tuple[int, int]:
+    """The widths (texels along u) :func:`tile_resolution` accepts as an int for a tile of
+    ``aspect`` with ``counts`` (rows, columns) of threads: (low, high), low > high if none."""
+    lo_h, lo_w = min_texels * counts[0], min_texels * counts[1]
+
+    def fits(w):
+        h, _ = _height_width(w, aspect)
+        return lo_h <= h <= MAX_RESOLUTION
+
+    # The height is monotonic in w: start from the real-valued bounds, step over rounding.
+    low = max(lo_w, math.ceil((lo_h - 0.5) / aspect) - 1)
+    while low <= MAX_RESOLUTION and not fits(low):
+        low += 1
+    high = min(MAX_RESOLUTION, math.floor((MAX_RESOLUTION + 0.5) / aspect) + 1)
+    while high >= low and not fits(high):
+        high -= 1
+    return low, high

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 import numpy as np
@@ -119,6 +120,8 @@ class _Wif:
         self.sections: dict[str, _Section] = {}
         self.order: list[str] = []
         self.last_line = 0          # last line carrying data: where truncation shows
+        self.last_section: str | None = None   # the section that line is in
+        self.colourless: list[str] = []         # "[WARP] line 31" of Color=index without a [COLOR TABLE]
         self.warnings: list[str] = []
         self._split(text)
 
@@ -148,6 +151,7 @@ class _Wif:
                         self.sections[name] = _Section(name, lineno)
                         self.order.append(name)
                     current = self.sections[name]     # a repeated header continues the section
+                    self.last_section = name
                     continue
                 msg = f"expected a section header like [THREADING] or a key=value line, got {line!r}"
                 if current is not None:
@@ -398,10 +402,9 @@ def _build(wif: _Wif, name: str) -> Draft:
             msg += f" ([CONTENTS] line {listed.line} lists it: is the file truncated?)"
         return PatternError(f"{fname}: {msg}")
 
-    if contents is not None:
-        for key, e in contents.entries.items():
-            if _BOOLS.get(e.value.upper(), False) and key not in wif.sections:
-                wif.warnings.append(f"[CONTENTS] line {e.line} lists [{key}] but the file has none")
+    # Sections [CONTENTS] promises that the file lacks: (line in [CONTENTS], name).
+    absent = [] if contents is None else [(e.line, key) for key, e in contents.entries.items()
+                                          if _BOOLS.get(e.value.upper(), False) and key not in wif.sections]
 
     # --- loom: shafts, treadles, shed -------------------------------------------------------
     n_shafts = n_treadles = None
@@ -465,6 +468,19 @@ def _build(wif: _Wif, name: str) -> Draft:
         raise wif.error(lift_name, wif.sections[lift_name].line,
                         "section is empty: expected pick=... lines (truncated file?)")
 
+    # A file that ends in a section [CONTENTS] lists, while sections it lists never come, was
+    # cut off: read as it is, its last section would lose picks (or ends) and the missing
+    # colours would turn white. (A writer that lists a section it does not write, with
+    # [CONTENTS] or an unlisted section last, only gets a warning.)
+    ending = wif.last_section
+    if absent and ending is not None and ending != "CONTENTS" and ending in contents.entries \
+            and _BOOLS.get(contents.entries[ending].value.upper(), False):
+        line, key = absent[0]
+        raise wif.error(ending, wif.last_line, f"the file ends here, but [CONTENTS] line {line} lists "
+                                               f"[{key}], which never comes (the file is truncated?)")
+    for line, key in absent:
+        wif.warnings.append(f"[CONTENTS] line {line} lists [{key}] but the file has none")
+
     n_weft, _ = _count(wif, "WEFT")
     weft_explicit = n_weft is not None
     if n_weft is None:
@@ -512,6 +528,12 @@ def _build(wif: _Wif, name: str) -> Draft:
     table, rng = _color_table(wif)
     warp_colors = _thread_colors(wif, "WARP", n_warp, warp_explicit, table, rng)
     weft_colors = _thread_colors(wif, "WEFT", n_weft, weft_explicit, table, rng)
+    if wif.colourless:
+        # Weaving programs open such files (their palette is their own default): so do we.
+        message = (f"{' and '.join(wif.colourless)}: Color= names a palette colour but there is no "
+                   f"[COLOR TABLE]; white used")
+        wif.warnings.append(message)
+        warnings.warn(f"{fname}: {message}", UserWarning, stacklevel=3)
 
     # --- spacing / thickness ------------------------------------------------------------------
     warp_units, warp_factor = _units(wif, "WARP")
@@ -605,7 +627,11 @@ def _thread_colors(wif: _Wif, side: str, count: int, explicit: bool,
     if e is not None and e.value:
         parts = [p.strip() for p in e.value.split(",")]
         if len(parts) == 1:
-            default = lookup(side, e, wif.int_value(side, e, "a colour index", lo=0))
+            index = wif.int_value(side, e, "a colour index", lo=0)
+            if wif.section("COLOR TABLE") is None:
+                wif.colourless.append(f"[{side}] line {e.line}")  # the default colour, with a warning
+            else:
+                default = lookup(side, e, index)
         elif len(parts) in (3, 4):
             # Some writers give "index,r,g,b" or just "r,g,b": the RGB is the colour itself.
             default = _rgb(wif, side, e, ",".join(parts[-3:]), rng)

@@ -241,5 +241,7 @@ class FuzzCosineSampler:
         return mi.Vector3f(sin_o * cos_phi, sin_o * sin_phi, cos_o)
 
     def pdf(self, w):
-        cell = mi.UInt32(dr.clip(dr.floor(dr.abs(w.z) * self.n), 0, self.n - 1))
+        # A NaN direction reads cell 0 (scalar variants raise on UInt32(NaN)).
+        cos_o = dr.select(dr.isnan(w.z), 0.0, dr.abs(w.z))
+        cell = mi.UInt32(dr.clip(dr.floor(cos_o * self.n), 0, self.n - 1))
         return gather(self._density, cell)

@@ -41,8 +41,11 @@ def unscattered_transmittance(w, t, alpha, thickness):
 
 def unscattered_transmittance_from(sigma, w, thickness):
     """:func:`unscattered_transmittance` given the projected area ``sigma`` = sigma(w) (the
-    form multi-scale shading uses with a footprint's mean SGGX matrix)."""
-    return dr.exp(-thickness * dr.abs(sigma / w.z))
+    form multi-scale shading uses with a footprint's mean SGGX matrix). Zero at grazing
+    w.z = 0 (Lambda is infinite there), guarded: scalar variants' Python floats raise on /0."""
+    grazing = w.z == 0.0
+    lam = dr.abs(sigma / dr.select(grazing, 1.0, w.z))
+    return dr.select(grazing, 0.0, dr.exp(-thickness * lam))
 
 
 def reflection_attenuation(lambda_i, lambda_o, thickness):
@@ -112,7 +115,8 @@ def _eval_specular(d, sigma_i, sigma_o, wi, wo, thickness):
     lam_i = sigma_i / dr.select(valid, cos_i, 1.0)
     lam_o = sigma_o / dr.select(valid, abs_cos_o, 1.0)
     unscattered, g_t = _attenuations(lam_i, lam_o, thickness)
-    g_r_over_cos_i = (1.0 - unscattered) * abs_cos_o / (sigma_i * abs_cos_o + sigma_o * cos_i)
+    # (The denominator is > 0 where valid; guarded elsewhere, where a zero wo makes it 0.)
+    g_r_over_cos_i = (1.0 - unscattered) * abs_cos_o / dr.select(valid, sigma_i * abs_cos_o + sigma_o * cos_i, 1.0)
     g_t_over_cos_i = g_t / dr.select(valid, cos_i, 1.0)
 
     g_over_cos_i = dr.select(reflect, g_r_over_cos_i, g_t_over_cos_i)
@@ -137,5 +141,6 @@ def pdf_specular(wi, wo, t, alpha):
     """Solid-angle density of :func:`sample_specular`."""
     h = dr.normalize(wi + wo)
     finite = dr.squared_norm(wi + wo) > 1e-12
-    pdf = sggx.ndf(h, t, alpha) / (4.0 * sggx.projected_area(wi, t, alpha))
-    return dr.select(finite & (wi.z > COS_EPSILON), pdf, 0.0)
+    valid = finite & (wi.z > COS_EPSILON)  # then sigma(wi) > 0 (guarded: scalar floats raise on /0)
+    pdf = sggx.ndf(h, t, alpha) / dr.select(valid, 4.0 * sggx.projected_area(wi, t, alpha), 1.0)
+    return dr.select(valid, pdf, 0.0)

@@ -148,8 +148,8 @@ def scene_maps(label: str, spec: dict, maps_dir: str | os.PathLike | None = None
     directory's absolute path, which the ``cloth`` BSDF's ``pattern`` takes. The directory
     appears whole or not at all (written beside it, then renamed)."""
     import shutil
-    import tempfile
 
+    from ..atomic import temporary_directory
     from ..cache import default_cache_dir, mark_used
     from ..maps.cloth_maps import JSON_NAME, NPZ_NAME
     from ..maps.generate import generate_maps
@@ -163,7 +163,7 @@ def scene_maps(label: str, spec: dict, maps_dir: str | os.PathLike | None = None
     parent.mkdir(parents=True, exist_ok=True)
     params = dict(spec)
     maps = generate_maps(params.pop("pattern"), params.pop("resolution"), **params)
-    tmp = Path(tempfile.mkdtemp(dir=parent, prefix=f".{path.name}."))
+    tmp = temporary_directory(parent, prefix=f".{path.name}.")  # mkdtemp's would be 0700
     try:
         maps.save(tmp, overwrite=True)
         try:
