@@ -85,7 +85,7 @@ def test_misspelled_parameter_is_named_with_the_closest_one():
     with pytest.raises(ParameterError, match=r"unknown parameter 'Roughness': did you mean 'roughness'\?"):
         load_dict({"type": "cloth", "Roughness": 0.3})
     # Nothing close: the names it takes instead.
-    with pytest.raises(ParameterError, match=r"unknown parameter 'glitter': expected one of pattern, resolution, "):
+    with pytest.raises(ParameterError, match=r"unknown parameter 'glitter': expected one of fabric, pattern, resolution, "):
         load_dict({"type": "cloth", "glitter": 1.0})
 
 

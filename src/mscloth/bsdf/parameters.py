@@ -59,7 +59,7 @@ BOOL_PARAMETERS = {
 }
 
 #: Every parameter the plugin reads: those of the table in its docstring (``cloth.DOCSTRING``).
-PARAMETER_NAMES = ("pattern", "resolution", *FLOAT_PARAMETERS, *SPECTRUM_PARAMETERS, *BOOL_PARAMETERS,
+PARAMETER_NAMES = ("fabric", "pattern", "resolution", *FLOAT_PARAMETERS, *SPECTRUM_PARAMETERS, *BOOL_PARAMETERS,
                    *INT_PARAMETERS)
 
 
