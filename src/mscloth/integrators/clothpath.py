@@ -91,13 +91,16 @@ Footprint convention: the footprint of a shading point is the UV parallelogram c
    * - gap_shadows
      - boolean
      - true
-     - Shadow rays towards delta emitters (a sun, a point light) cross cloth through its
-       gaps (:mod:`mscloth.integrators.gap_shadows`), the only way such light reaches what
-       lies behind cloth. Off, cloth blocks them like any surface: faster where many
-       shadow rays meet cloth (the demo scene: a crossing every other sample; ``make
-       bench`` measures it), but the sunlight through the weave, on the floor under a
-       sheet or inside a cloth-covered object, is lost. Other emitters are reached
-       through gaps by BSDF sampling either way.
+     - Shadow rays cross cloth through its gaps, as through a null interface
+       (:mod:`mscloth.integrators.gap_shadows`): the only way the light of a delta
+       emitter (a sun, a point light) reaches what lies behind cloth, and for other
+       emitters MIS-weighted against BSDF paths through the gaps, whose gap crossings
+       leave the MIS state of the vertex before them as it was. Off, cloth blocks shadow
+       rays like any surface: faster where many shadow rays meet cloth (the demo scene: a
+       crossing every other sample; ``make bench`` measures it), but the sunlight through
+       the weave, on the floor under a sheet or inside a cloth-covered object, is lost,
+       and area lights and skies behind cloth are reached by BSDF sampling alone (the same
+       image, with fireflies under sheer cloth).
 
 AOVs ``footprint_u`` and ``footprint_v``: the footprint half-widths in UV at the first hit
 (0 where the camera ray escapes), e.g. ``footprint_u`` = 1/(2N) for a UV square seen
@@ -251,19 +254,26 @@ def make_clothpath_class():
                                mi.Float(spread0), mi.Bool(active))
 
         @staticmethod
-        def _visible(scene, si, ds, em_weight, active, gaps, cone_width, cone_spread):
+        def _visible(scene, si, ds, em_weight, active, gaps, cone_width, cone_spread, max_crossings):
             """(ds, weight, active, local direction) of an emitter sample after its shadow
-            ray: opaque occluders block it; with ``gaps``, delta emitters are seen through
-            the gaps of cloth (see :mod:`.gap_shadows`)."""
+            ray: opaque occluders block it; with ``gaps``, emitters are seen through the
+            gaps of cloth (see :mod:`.gap_shadows`): delta emitters across up to
+            ``MAX_CROSSINGS`` layers, others across ``max_crossings``, the most that a
+            BSDF-sampled path from here can cross before it reaches its ``max_depth``
+            (both strategies must reach a path for their MIS weights to add up to 1)."""
             jit = dr.is_jit_v(mi.Float)
             active = active & (ds.pdf != 0.0)
             if jit or active:
                 if gaps:
-                    # A cheap any-hit test first; only occluded delta samples trace through.
+                    # A cheap any-hit test first; only occluded samples trace through.
                     occluded = scene.ray_test(si.spawn_ray_to(ds.p), active)
-                    crossing = active & ds.delta & occluded
+                    if jit:
+                        limit = dr.select(ds.delta, mi.UInt32(gap_shadows.MAX_CROSSINGS), max_crossings)
+                    else:
+                        limit = gap_shadows.MAX_CROSSINGS if ds.delta else max_crossings
+                    crossing = active & occluded & (limit > 0)
                     through = gap_shadows.shadow_transmittance(scene, si, ds.p, cone_width, cone_spread,
-                                                               crossing) if (jit or crossing) else 0.0
+                                                               crossing, limit) if (jit or crossing) else 0.0
                     em_weight = em_weight * dr.select(crossing, through, 1.0)
                     active &= dr.select(crossing, through > 0.0, _not(occluded))
                 else:
@@ -287,7 +297,9 @@ def make_clothpath_class():
                 emitters = [e for e in emitters if not _is_uniform(e)]
             all_emitters = self.emitter_sampling == "all" and (len(emitters) > 1 or env_by_bsdf)
             n_em = self.emitter_samples
-            gaps = self.gap_shadows and gap_shadows.has_gap_transmission(scene)
+            gap_bsdfs = gap_shadows.gap_bsdfs(scene) if self.gap_shadows else []
+            gaps = bool(gap_bsdfs)
+            gap_ptrs = [mi.BSDFPtr(b) for b in gap_bsdfs] if jit else []
             # Offsets of camera samples from their pixel centres (perspective and
             # orthographic cameras), for footprint-shading BSDFs.
             centring = fp.pixel_centring(scene, ray_d) if has_diff else None
@@ -315,7 +327,8 @@ def make_clothpath_class():
 
             def loop_body(state):
                 (sampler, ray, pi, throughput, result, eta, depth, valid_ray, prev_si,
-                 prev_bsdf_pdf, active, prev_bsdf_delta, cone_w, cone_spread, aovs, delta_chain) = state
+                 prev_bsdf_pdf, active, prev_bsdf_delta, cone_w, cone_spread, aovs, delta_chain,
+                 gap_run) = state
 
                 si = pi.compute_surface_interaction(ray, mi.RayFlags.All)
 
@@ -356,6 +369,10 @@ def make_clothpath_class():
                             em_pdf = ds.emitter.pdf_direction(prev_si, ds, _not(prev_bsdf_delta))
                         else:
                             em_pdf = scene.pdf_emitter_direction(prev_si, ds, _not(prev_bsdf_delta))
+                        if gaps:
+                            # prev_si is the vertex before the gap crossings (if any); past
+                            # MAX_CROSSINGS of them its shadow rays do not reach the emitter.
+                            em_pdf = dr.select(gap_run <= gap_shadows.MAX_CROSSINGS, em_pdf, 0.0)
                     if env_by_bsdf:
                         em_pdf = dr.select(si.is_valid(), em_pdf, 0.0)
                     # Only non-delta emitters can be hit, and each had n_em samples.
@@ -368,13 +385,23 @@ def make_clothpath_class():
                 if not jit and not active_next:  # scalar variants stop here, as path.cpp does
                     return (sampler, ray, pi, throughput, result, eta, depth, valid_ray,
                             prev_si, prev_bsdf_pdf, False, prev_bsdf_delta, cone_w,
-                            cone_spread, aovs, delta_chain)
+                            cone_spread, aovs, delta_chain, gap_run)
 
                 bsdf = si.bsdf()
 
                 # ---------------------- Emitter sampling ---------------------
                 active_em = active_next & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
                 em_samples = []  # (ds, weight, active, local direction) per emitter sample
+                # Cloth layers a shadow ray towards a non-delta emitter may cross: as many as a
+                # BSDF path from here can cross through gaps (each crossing is a vertex of
+                # the path) and still count the emitter it then hits (depth + 1 + k < max_depth).
+                max_crossings = 0
+                if gaps and (jit or active_em):
+                    if jit:
+                        room = dr.select(depth + 2 <= max_depth, mi.UInt32(max_depth) - depth - 2, 0)
+                        max_crossings = dr.minimum(room, gap_shadows.MAX_CROSSINGS)
+                    else:
+                        max_crossings = max(0, min(max_depth - depth - 2, gap_shadows.MAX_CROSSINGS))
                 if jit or active_em:
                     if all_emitters:
                         for emitter in emitters:
@@ -382,14 +409,14 @@ def make_clothpath_class():
                             for _ in range(1 if delta else n_em):
                                 ds, em_weight = emitter.sample_direction(si, sampler.next_2d(), active_em)
                                 em_samples.append(self._visible(scene, si, ds, em_weight, active_em,
-                                                                gaps, shadow_w, shadow_spread))
+                                                                gaps, shadow_w, shadow_spread, max_crossings))
                     else:
                         for _ in range(n_em):
-                            # Visibility as Mitsuba tests it, plus gaps for delta emitters.
+                            # Visibility as Mitsuba tests it, plus the gaps of cloth.
                             ds, em_weight = scene.sample_emitter_direction(si, sampler.next_2d(), False,
                                                                            active_em)
                             em_samples.append(self._visible(scene, si, ds, em_weight, active_em, gaps,
-                                                            shadow_w, shadow_spread))
+                                                            shadow_w, shadow_spread, max_crossings))
                 if not em_samples:
                     em_samples.append((None, None, False, mi.Vector3f(0.0)))
 
@@ -438,14 +465,38 @@ def make_clothpath_class():
                 eta = eta * bsdf_sample.eta
                 valid_ray = valid_ray | (active & si.is_valid() & _not(
                     mi.has_flag(bsdf_sample.sampled_type, mi.BSDFFlags.Null)))
-                prev_si = mi.Interaction3f(si)
-                prev_bsdf_pdf = bsdf_sample.pdf
-                prev_bsdf_delta = mi.has_flag(bsdf_sample.sampled_type, mi.BSDFFlags.Delta)
-                delta_chain = delta_chain & prev_bsdf_delta
+                sampled_delta = mi.has_flag(bsdf_sample.sampled_type, mi.BSDFFlags.Delta)
+                # A crossing through the gap of cloth is a null interface to MIS: shadow rays
+                # from the vertex before it cross it too, so that vertex stays prev_si, with
+                # its pdf, for the emitter the path may hit next.
+                crossed = False
+                if gaps:
+                    crossed = active_next & mi.has_flag(bsdf_sample.sampled_type,
+                                                        mi.BSDFFlags.DeltaTransmission)
+                    if jit:
+                        on_gap_bsdf = mi.Bool(False)
+                        for ptr in gap_ptrs:
+                            on_gap_bsdf |= bsdf == ptr
+                        crossed &= on_gap_bsdf
+                    else:
+                        crossed = crossed and hasattr(bsdf, "gap_transmission")
+                if gaps and jit:
+                    prev_si = dr.select(crossed, prev_si, mi.Interaction3f(si))
+                    prev_bsdf_pdf = dr.select(crossed, prev_bsdf_pdf, bsdf_sample.pdf)
+                    prev_bsdf_delta = dr.select(crossed, prev_bsdf_delta, sampled_delta)
+                    gap_run = dr.select(crossed, gap_run + 1, 0)
+                elif not crossed:
+                    prev_si = mi.Interaction3f(si)
+                    prev_bsdf_pdf = bsdf_sample.pdf
+                    prev_bsdf_delta = sampled_delta
+                    gap_run = mi.UInt32(0)
+                else:
+                    gap_run = gap_run + 1
+                delta_chain = delta_chain & sampled_delta
 
                 # The cone leaves this vertex with its width here, spread by the lobe.
                 cone_w = w_hit
-                cone_spread = fp.bounce_spread(cone_spread, bsdf_sample.pdf, prev_bsdf_delta)
+                cone_spread = fp.bounce_spread(cone_spread, bsdf_sample.pdf, sampled_delta)
 
                 # -------------------- Stopping criterion ---------------------
                 depth = dr.select(si.is_valid(), depth + 1, depth)
@@ -459,7 +510,8 @@ def make_clothpath_class():
 
                 pi = scene.ray_intersect_preliminary(ray, coherent=False, active=active)
                 return (sampler, ray, pi, throughput, result, eta, depth, valid_ray, prev_si,
-                        prev_bsdf_pdf, active, prev_bsdf_delta, cone_w, cone_spread, aovs, delta_chain)
+                        prev_bsdf_pdf, active, prev_bsdf_delta, cone_w, cone_spread, aovs, delta_chain,
+                        gap_run)
 
             state = (
                 sampler, ray, pi,
@@ -477,6 +529,7 @@ def make_clothpath_class():
                 mi.Float(spread0),                # cone spread angle
                 tuple(mi.Float(0.0) for _ in AOV_NAMES),  # AOVs
                 mi.Bool(True),                    # only delta bounces so far
+                mi.UInt32(0),                     # gap crossings since prev_si
             )
             if jit:
                 state = dr.while_loop((state,), lambda st: loop_cond(st),

@@ -1,12 +1,15 @@
 """Shadow rays that pass through the gaps between yarns.
 
-A ``cloth`` surface lets light through its gaps as a delta transmission lobe. BSDF sampling
-finds that path to area and environment emitters, but never to a delta emitter (a sun, a
-point light): there only emitter sampling can, so its shadow ray must cross the cloth with
-the gap transmittance instead of stopping there. For non-delta emitters the shadow ray
-stays opaque to cloth: BSDF sampling through the gap already counts that light (with MIS
-weight 1, the gap being a delta lobe), and counting it in the shadow ray too would count
-it twice.
+A ``cloth`` surface lets light through its gaps as a delta transmission lobe: for light
+transport the gap is a null interface with transmittance ``gap_transmission``. Emitter
+sampling reaches emitters behind cloth as volpath reaches them behind a null surface: the
+shadow ray crosses each cloth layer with that transmittance instead of stopping there.
+For delta emitters (a sun, a point light) this is the only way their light passes (BSDF
+sampling never hits them). For other emitters BSDF sampling also gets there, by choosing
+the gap lobe at every crossing; ``clothpath`` then weighs the two strategies by MIS at the
+vertex before the crossings (the crossings are transparent to its MIS bookkeeping), so
+that light is counted once, mostly by the shadow ray, with far less noise than by BSDF
+paths that must hit a small emitter.
 
 BSDFs opt in with ``gap_transmission(si, active)``: the fraction of light that crosses the
 surface along ``-si.wi`` without scattering (``cloth``: T_sheen^2 times the gap fraction of
@@ -19,13 +22,24 @@ import mitsuba as mi
 
 from . import footprint as fp
 
-#: Most cloth layers a shadow ray crosses before it counts as blocked.
+#: Most cloth layers a shadow ray crosses; one more blocks it (BSDF-sampled paths to an
+#: emitter across more layers than this are not MIS-weighted against shadow rays).
 MAX_CROSSINGS = 8
+
+
+def gap_bsdfs(scene) -> list:
+    """The distinct BSDFs of ``scene``'s shapes that have ``gap_transmission``."""
+    found = []
+    for shape in scene.shapes():
+        bsdf = shape.bsdf()
+        if bsdf is not None and hasattr(bsdf, "gap_transmission") and all(bsdf is not b for b in found):
+            found.append(bsdf)
+    return found
 
 
 def has_gap_transmission(scene) -> bool:
     """Whether any shape of ``scene`` has a BSDF with ``gap_transmission``."""
-    return any(hasattr(shape.bsdf(), "gap_transmission") for shape in scene.shapes() if shape.bsdf() is not None)
+    return bool(gap_bsdfs(scene))
 
 
 def _gap_transmission(bsdf, si, active=True):
@@ -34,12 +48,20 @@ def _gap_transmission(bsdf, si, active=True):
     return mi.Float(0.0)
 
 
-def shadow_transmittance(scene, si, target, cone_width, cone_spread, active):
+def _not(mask):
+    """Logical not of a mask, also for the Python bools of scalar variants."""
+    return mask ^ True
+
+
+def shadow_transmittance(scene, si, target, cone_width, cone_spread, active,
+                         max_crossings=MAX_CROSSINGS):
     """Transmittance from ``si`` to the point ``target`` through gap-transmitting surfaces
-    (0 where anything else blocks), each crossing shaded with the ray cone of the path
-    (width ``cone_width`` at ``si``, spread ``cone_spread``) as its footprint."""
+    (0 where anything else blocks, or where more than ``max_crossings`` surfaces lie in the
+    way), each crossing shaded with the ray cone of the path (width ``cone_width`` at
+    ``si``, spread ``cone_spread``) as its footprint."""
     jit = dr.is_jit_v(mi.Float)
     ray = si.spawn_ray_to(target)
+    limit = mi.UInt32(max_crossings)
     state = (ray, mi.Float(1.0), mi.Bool(active), mi.Float(0.0), mi.UInt32(0))
 
     def cond(ray, trans, going, travelled, crossings):
@@ -48,19 +70,19 @@ def shadow_transmittance(scene, si, target, cone_width, cone_spread, active):
     def body(ray, trans, going, travelled, crossings):
         hit_si = scene.ray_intersect(ray, mi.RayFlags.All, False, going)
         hit = going & hit_si.is_valid()
+        crossings = dr.select(hit, crossings + 1, crossings)
+        blocked = hit & (crossings > limit)
+        hit &= _not(blocked)
         d = dr.normalize(ray.d)
         hit_si.wi = hit_si.to_local(-d)
         width = fp.cone_width(cone_width, cone_spread, travelled + hit_si.t)
         hit_si.duv_dx, hit_si.duv_dy = fp.cone_footprint(width, d, hit_si.n, hit_si.dp_du, hit_si.dp_dv)
         if jit:
             crossing = dr.dispatch(hit_si.bsdf(), _gap_transmission, hit_si, hit)
-        else:
-            # A scalar miss has no shape: asking it for a BSDF dereferences null.
+        else:  # (scalar: an invalid hit has no shape, and bsdf() would crash)
             crossing = _gap_transmission(hit_si.bsdf(), hit_si, hit) if hit else mi.Float(1.0)
-        trans = dr.select(hit, trans * crossing, trans)
-        crossings = dr.select(hit, crossings + 1, crossings)
-        going = hit & (trans > 0.0) & (crossings < MAX_CROSSINGS)
-        trans = dr.select(hit & (crossings >= MAX_CROSSINGS), 0.0, trans)
+        trans = dr.select(blocked, 0.0, dr.select(hit, trans * crossing, trans))
+        going = hit & (trans > 0.0)
         next_ray = hit_si.spawn_ray_to(target)
         ray = dr.select(going, next_ray, ray) if jit else (next_ray if going else ray)
         travelled = dr.select(hit, travelled + hit_si.t, travelled)
