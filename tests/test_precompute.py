@@ -793,6 +793,35 @@ def test_cache_key_changes_with_every_parameter(maps_sq, maps_rect, tmp_path):
     assert len(keys) == 13
 
 
+def test_table_key_is_the_cache_key_of_its_fields(maps_sq, tmp_path):
+    """A TableKey holds every build input, validated and normalised once; its cache key is the
+    one the build inputs had before it existed (caches stay valid), and load_or_build takes
+    it in place of the roughness and keywords."""
+    import dataclasses
+    import json
+
+    from mscloth.errors import ParameterError
+    from mscloth.precompute.tables import TableKey
+
+    key = TableKey(0.3, dr=4, dv=2, clusters=2)
+    as_before = {"roughness": 0.3, "dr": 4, "d_rank": 0, "dv": 2, "clusters": 2, "per_cluster_sat": False,
+                 "seed": 0, "iters": 30, "max_step": 0.5, "vis_eps": 1e-4, "fast_visibility": True,
+                 "parallax": False}
+    assert json.dumps(key.as_params(), sort_keys=True) == json.dumps(as_before, sort_keys=True)
+    assert table_key(maps_sq, key.as_params()) == table_key(maps_sq, as_before)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        key.roughness = 0.4
+    assert TableKey(0.3, dr=4, d_rank=16).d_rank == 0  # a rank of all bins is the full table
+    for bad in (dict(roughness=0.0), dict(roughness=0.3, dr=0), dict(roughness=0.3, d_rank=17, dr=4)):
+        with pytest.raises(ParameterError):
+            TableKey(**bad)
+    tables = load_or_build(maps_sq, key, cache_dir=tmp_path, progress=False)
+    assert tables.key == load_or_build(maps_sq, 0.3, cache_dir=tmp_path, **CACHE_KW).key
+    assert tables.key == build_tables(maps_sq, key, progress=False).key
+    with pytest.raises(TypeError):
+        load_or_build(maps_sq, key, cache_dir=tmp_path, dr=8)
+
+
 def _corrupt_middle(path):
     data = bytearray(path.read_bytes())
     mid = len(data) // 2

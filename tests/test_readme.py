@@ -50,3 +50,26 @@ def test_fabric_xml_snippet_loads():
     assert cloth.maps.meta["fabric"] == "silk-charmeuse"
     width_mm = cloth.maps.meta["tile_size_mm"][0]
     assert abs(cloth.uv_scale[0] - 10.0 / width_mm) < 1e-3 * cloth.uv_scale[0]  # UVs in cm
+
+
+def test_parameter_tables_flag_what_traverse_exposes():
+    """README.md's `cloth` table and the plugin docstring's list-table give each parameter
+    the flags of parameters.EXPOSED, the table that ``traverse`` follows ("—": not exposed)."""
+    from mscloth.bsdf.parameters import EXPOSED, exposure_text
+
+    section = README.split("## `cloth` parameters\n", 1)[1].split("\n## ", 1)[0]
+    rows = {line.split("`")[1]: line.rstrip(" |").rsplit("| ", 1)[1]
+            for line in section.splitlines() if line.startswith("| `")}
+    assert set(EXPOSED) <= set(rows)
+    assert {name: cell for name, cell in rows.items() if cell != exposure_text(name)} == {}
+
+    mscloth.register()
+    doc = type(mi.load_dict({"type": "cloth", "multiscale": False, "visibility": False})).__doc__
+    table = doc.split(".. list-table::", 1)[1].split("\n\n", 2)[1]
+    cells = {}
+    for row in table.split("   * - ")[2:]:  # after the header row
+        parts = row.split("\n     - ")
+        for name in parts[0].split(", "):
+            cells[name.strip()] = parts[-1].strip()
+    assert set(rows) <= set(cells) and all(cells[name] == exposure_text(name) for name in cells)
+    assert cells["roughness"] == "P, ∂ at fibre level, P multi-scale" and cells["pattern"] == "—"

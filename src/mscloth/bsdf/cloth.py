@@ -21,7 +21,9 @@ from .lanes import logical_not
 from .lobe_calibration import calibrate
 from .lobes import (DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN,
                     SPECULAR_REFLECTION, SPECULAR_TRANSMISSION, with_yarn_albedo)
-from .parameters import FLOAT_PARAMETERS, SPECTRUM_PARAMETERS, cloth_maps, read_parameters, uv_scales
+from ..errors import ParameterError
+from .parameters import (EXPOSED, FLOAT_PARAMETERS, SPECTRUM_PARAMETERS, _check_float, cloth_maps,
+                         exposure_flags, read_parameters, uv_scales, with_flags_column)
 
 
 #: Numbers cloths that have no id of their own, so that their progress lines differ.
@@ -53,6 +55,12 @@ yarns and delta transmission through the gaps between yarns::
 
 The cloth is thin and two-sided: viewer and light may be on either side; the
 back side sees the same maps mirrored through the surface.
+
+Flags (as in Mitsuba's plugin docs): P exposed by ``mi.traverse`` (set it, then
+``params.update()``), ∂ differentiable, D discontinuous. A parameter is differentiable where
+evaluation reads it live; roughness is baked into the footprint's directional tables, so it
+is not differentiable with ``multiscale``, and changing it rebuilds them (cached). Parameters
+marked "—" are read once: reload the scene to change them.
 
 .. list-table::
    :header-rows: 1
@@ -192,8 +200,10 @@ weight linear in the area. Direction bins of the tables are read with their bili
 weights.
 
 Sampling picks one lobe by an estimate of its albedo, calibrated when the BSDF is built
-against measured lobe albedos (``bsdf/lobe_calibration.py``; JIT variants), and samples it
-exactly (visible normals, cosine); the weight is the whole mixture's eval over its pdf.
+(and when its roughness changes) against measured lobe albedos
+(``bsdf/lobe_calibration.py``; JIT variants), and samples it exactly (visible normals,
+cosine); the weight is the whole mixture's eval over its pdf. Other changed parameters keep
+the calibration: it steers the choice of lobe only, never the estimate's expectation.
 
 Per channel, diffuse_albedo + diffuse_transmittance + max(specular_albedo,
 specular_transmittance) must not exceed 1, so that no configuration creates
@@ -242,7 +252,7 @@ def make_cloth_class():
     )
 
     class ClothBSDF(mi.BSDF):
-        __doc__ = DOCSTRING
+        __doc__ = with_flags_column(DOCSTRING)
 
         def __init__(self, props):
             # Validate everything before the C++ base is constructed: a base that is
@@ -254,58 +264,79 @@ def make_cloth_class():
             self.pattern = p.fabric.name if not p.pattern_given else p.pattern
             self.label = cloth_label(props.id(), self.pattern)
             self.maps = maps
-            self._pinned = []
+            # What the tables and the calibration were built from (parameters_changed
+            # builds again when its roughness changes); everything else shading reads live.
+            self.build = p.build
+            self._pinned = {}
             uv_scale, uv_scale_v = uv_scales(p, maps)
-            self.uv_scale = self._parameter(uv_scale)
-            self.uv_scale_v = self._parameter(uv_scale_v)
-            self.roughness = self._parameter(p.roughness)
-            self.thickness = self._parameter(p.thickness)
-            self.sheen_roughness = self._parameter(p.sheen_roughness)
-            self.sheen_thickness = self._parameter(p.sheen_thickness)
+            # uv_scale_v follows uv_scale at the tile's aspect when it was not given.
+            self._uv_aspect = None if (p.uv_scale_v and not p.uv_unit) else uv_scale_v / uv_scale
+            self.uv_scale = self._parameter("uv_scale", uv_scale)
+            self.uv_scale_v = self._parameter("uv_scale_v", uv_scale_v)
+            self.roughness = self._parameter("roughness", p.roughness)
+            self.thickness = self._parameter("thickness", p.thickness)
+            self.sheen_roughness = self._parameter("sheen_roughness", p.sheen_roughness)
+            self.sheen_thickness = self._parameter("sheen_thickness", p.sheen_thickness)
             self.textures = p.textures
             self._upload_maps(self.maps)
-            self.multiscale = p.multiscale
+            self.multiscale = p.build.multiscale
             # Read by clothpath: footprints are shaded whole, so centre them on the pixel.
-            self.footprint_shading = p.multiscale
-            self.use_visibility = p.visibility
-            self.use_parallax = p.parallax
+            self.footprint_shading = p.build.multiscale
+            self.use_visibility = p.build.visibility
+            self.use_parallax = p.build.parallax
             if p.footprint_slices != 1:
                 mi.Log(mi.LogLevel.Warn, f"cloth [{self.label}]: footprint_slices is no longer used: footprints are "
                                          "shaded as the pixel's parallelogram (one probe per sample)")
-            self.footprint_data = None
-            self.direction_rank = p.direction_rank  # the rank built (see max_table_mib)
-            if p.multiscale or p.visibility or p.parallax:
-                from ..precompute.tables import choose_direction_rank, load_or_build
-
-                rank, why = choose_direction_rank(*self.maps.resolution, p.direction_bins, p.direction_rank,
-                                                  p.max_table_mib)
-                if why and p.multiscale:
-                    mi.Log(mi.LogLevel.Warn, f"cloth [{self.label}]: {why}")
-                self.direction_rank = rank
-                tables = load_or_build(self.maps, p.roughness, dr=p.direction_bins, dv=p.visibility_bins,
-                                       clusters=p.clusters, per_cluster_sat=p.unbiased_ccv,
-                                       d_rank=rank, parallax=p.parallax, label=self.label)
-                self.footprint_data = FootprintData(tables, with_sats=p.multiscale, with_parallax=p.parallax)
-            # The footprint BSDF; before calibration, which samples it.
-            self.estimator = FootprintEstimator(self) if p.multiscale else None
-
             flags = 0
             for f in lobe_flags:
                 flags |= f
             self.m_components = list(lobe_flags)
             self.m_flags = flags
+            self._build_tables()
+            self._build_samplers(p.sheen_roughness, p.sheen_thickness)
+            self._calibrate(uv_scale, uv_scale_v)
+
+        # ------------------------------------------------------------------
+        # What is built from parameters: tables, samplers, calibration
+        # ------------------------------------------------------------------
+        def _build_tables(self):
+            """The multi-scale tables of ``self.build`` (cached: :func:`load_or_build`) in
+            Dr.Jit memory, and the footprint estimator that reads them."""
+            b = self.build
+            self.footprint_data = None
+            self.table_key = None
+            self.direction_rank = b.direction_rank  # the rank built (see max_table_mib)
+            if b.needs_tables:
+                from ..precompute.tables import load_or_build
+
+                key, why = b.table_key(*self.maps.resolution)
+                if why and b.multiscale:
+                    mi.Log(mi.LogLevel.Warn, f"cloth [{self.label}]: {why}")
+                self.direction_rank = key.d_rank
+                tables = load_or_build(self.maps, key, label=self.label)
+                self.table_key = key
+                self.footprint_data = FootprintData(tables, with_sats=b.multiscale, with_parallax=b.parallax)
+            # The footprint BSDF; before calibration, which samples it.
+            self.estimator = FootprintEstimator(self) if b.multiscale else None
+
+        def _build_samplers(self, alpha_s, thickness_s):
+            """The samplers of the sheen and the diffuse lobes for the fuzz (``alpha_s``,
+            ``thickness_s``) (tables: they carry no gradient, and need none, see
+            :data:`EXPOSED`)."""
             # The sheen lobe sampled from a table of itself (JIT variants; scalar variants,
             # for unit tests, reflect on the fuzz's visible normals).
             self.sheen_sampler = sheen.FoldedSheenSampler(self.sheen_roughness)
-            # Diffuse lobes leave through the fuzz: sampled with its transmittance.
             with dr.suspend_grad():
-                self.diffuse_sampler = sheen.FuzzCosineSampler(p.sheen_roughness, p.sheen_thickness)
-            if dr.is_jit_v(mi.Float) and p.sheen_thickness > 0.0:
-                with dr.suspend_grad():
-                    self.sheen_sampler = sheen.TabulatedSheenSampler.shared(p.sheen_roughness, p.sheen_thickness)
-            # Lobe selection matched to the lobes' albedos, and for footprints to the
-            # footprint mixture's weights, measured once (JIT variants; scalar variants, for
-            # unit tests, keep the uncalibrated proxies).
+                # Diffuse lobes leave through the fuzz: sampled with its transmittance.
+                self.diffuse_sampler = sheen.FuzzCosineSampler(alpha_s, thickness_s)
+                if dr.is_jit_v(mi.Float) and thickness_s > 0.0:
+                    self.sheen_sampler = sheen.TabulatedSheenSampler.shared(alpha_s, thickness_s)
+
+        def _calibrate(self, uv_scale, uv_scale_v):
+            """Lobe selection matched to the lobes' albedos, and for footprints to the
+            footprint mixture's weights, measured on the BSDF as it is now, at the uv scales
+            given (JIT variants; scalar variants, for unit tests, keep the uncalibrated
+            proxies)."""
             self.lobe_calibration = None
             self.footprint_calibration = None
             if dr.is_jit_v(mi.Float):
@@ -315,7 +346,7 @@ def make_cloth_class():
                 with dr.suspend_grad():
                     self.lobe_calibration, self.footprint_calibration = calibrate(self, self.point_proxies, texel_uv)
 
-        def _parameter(self, value):
+        def _parameter(self, name, value):
             """A float parameter as an evaluated (opaque) Float in JIT variants, as Mitsuba's
             own plugins hold theirs: two ``cloth`` BSDFs that differ only in parameter
             values then trace the same code, which Dr.Jit runs once for a packet of lanes
@@ -324,10 +355,24 @@ def make_cloth_class():
             literal in place (a sheen_thickness of 0 once became as wide as the lanes it
             multiplied); the second reference guards that too."""
             value = mi.Float(value)
+            self._pin(name, value)
+            return value
+
+        def _pin(self, name, value):
+            """Make ``value`` (parameter ``name``'s Float, changed in place by
+            ``params.update()``) opaque again, and hold its second reference."""
             if dr.is_jit_v(mi.Float):
                 dr.make_opaque(value)
-                self._pinned.append(mi.Float(value))
-            return value
+                self._pinned[name] = mi.Float(value)
+
+        def _value(self, name) -> float:
+            """Parameter ``name``'s value as a Python float: in JIT variants its float32's
+            shortest decimal (0.45, not 0.4499999881), the value a scene would give, so
+            that what is built from it (a table's cache key, a shared sheen table) is what a
+            scene giving that value builds."""
+            if not dr.is_jit_v(mi.Float):
+                return float(getattr(self, name))
+            return float(str(np.float32(dr.detach(getattr(self, name))[0])))
 
         def _upload_maps(self, maps):
             fibre = np.concatenate([maps.tangent, maps.gap[..., None]], axis=-1).astype(np.float32)
@@ -752,16 +797,48 @@ def make_cloth_class():
             return values[0], pdfs[0], bs, weight
 
         def traverse(self, callback):
-            for name in FLOAT_PARAMETERS:
-                if name == "uv_unit":  # read once into uv_scale and uv_scale_v
-                    continue
-                callback.put(name, getattr(self, name), mi.ParamFlags.NonDifferentiable
-                             if name.startswith("uv_scale") else mi.ParamFlags.Differentiable)
-            for name in SPECTRUM_PARAMETERS:
-                callback.put(name, self.textures[name], mi.ParamFlags.Differentiable)
+            # Flags from parameters.EXPOSED: differentiable where eval reads the value live.
+            for name in EXPOSED:
+                value = self.textures[name] if name in self.textures else getattr(self, name)
+                callback.put(name, value, exposure_flags(name, self.multiscale))
 
         def parameters_changed(self, keys=[]):
-            pass
+            """After ``params.update()``: every changed float is checked and made opaque
+            again; a changed fuzz rebuilds the samplers; a changed roughness rebuilds what
+            was built from it (the tables where shading reads them, then the calibration),
+            as a BSDF loaded with it would have. Other parameters are read live. No keys:
+            all of them may have changed (Mitsuba's convention)."""
+            changed = set(keys) if keys else set(EXPOSED)
+            where = f"cloth [{self.label}]"
+            for name in FLOAT_PARAMETERS:
+                if name in changed and name in EXPOSED:
+                    _check_float(name, self._value(name), where)
+                    self._pin(name, getattr(self, name))
+            if "uv_scale_v" in changed and keys:
+                self._uv_aspect = None  # given now
+            elif "uv_scale" in changed and self._uv_aspect is not None:
+                # A v scale derived from uv_scale (and the tile's aspect) stays so, as when loaded.
+                v = self._value("uv_scale") * self._uv_aspect
+                if dr.is_jit_v(mi.Float):
+                    mi.set_property(self.uv_scale_v, mi.Float(v))  # in place: params holds it
+                else:
+                    self.uv_scale_v = v
+                self._pin("uv_scale_v", self.uv_scale_v)
+            if changed & {"sheen_roughness", "sheen_thickness"}:
+                self._build_samplers(self._value("sheen_roughness"), self._value("sheen_thickness"))
+            roughness = self._value("roughness")
+            if "roughness" in changed and np.float32(roughness) != np.float32(self.build.roughness):
+                try:
+                    build = self.build.with_roughness(roughness)
+                except ParameterError as error:
+                    reason = str(error).removeprefix("cloth: ")
+                    raise ParameterError(f"{where}: roughness {roughness:g} does not fit the tables: {reason}; "
+                                         "reload the scene with other direction_bins or direction_rank") from None
+                tables_change = self.build.tables_read_roughness
+                self.build = build
+                if tables_change:
+                    self._build_tables()
+                self._calibrate(self._value("uv_scale"), self._value("uv_scale_v"))
 
         def to_string(self):
             h, w = self.maps.resolution

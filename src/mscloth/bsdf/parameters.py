@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import difflib
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import drjit as dr
 import mitsuba as mi
@@ -75,46 +75,174 @@ def check_parameter_names(names) -> None:
         raise ParameterError(f"cloth: unknown parameter '{name}': {hint}")
 
 
+#: How ``traverse`` exposes each parameter, in the letters of Mitsuba's plugin docs: "P"
+#: exposed (change it in ``mi.traverse``, then ``params.update()``), "∂" differentiable, "D"
+#: discontinuous (none here): name -> (with ``multiscale`` false, with it true). The rule:
+#: a parameter is differentiable where everything that *evaluates* the BSDF reads it live;
+#: one baked into a table that eval reads (roughness: the footprint's mean D comes from the
+#: directional SAT) carries no gradient there, so it is not. Tables that only steer
+#: sampling (the sheen samplers, the lobe calibration) do not count: ``pdf`` is the density
+#: of ``sample`` whatever they hold. Parameters missing here are build-time only (maps,
+#: switches, table sizes, ``uv_unit``): not exposed; reload the scene to change them.
+EXPOSED = {
+    "uv_scale": ("P", "P"),
+    "uv_scale_v": ("P", "P"),
+    "roughness": ("P, ∂", "P"),
+    "thickness": ("P, ∂", "P, ∂"),
+    "sheen_roughness": ("P, ∂", "P, ∂"),
+    "sheen_thickness": ("P, ∂", "P, ∂"),
+    "specular_albedo": ("P, ∂", "P, ∂"),
+    "specular_transmittance": ("P, ∂", "P, ∂"),
+    "diffuse_albedo": ("P, ∂", "P, ∂"),
+    "diffuse_transmittance": ("P, ∂", "P, ∂"),
+    "sheen_color": ("P, ∂", "P, ∂"),
+}
+#: The docs' cell of a parameter that is not exposed.
+NOT_EXPOSED = "—"
+
+
+def exposure_flags(name: str, multiscale: bool):
+    """The ``mi.ParamFlags`` that ``traverse`` gives parameter ``name`` (see :data:`EXPOSED`)."""
+    letters = EXPOSED[name][1 if multiscale else 0]
+    flags = mi.ParamFlags.Differentiable if "∂" in letters else mi.ParamFlags.NonDifferentiable
+    if "D" in letters:
+        flags = flags | mi.ParamFlags.Discontinuous
+    return flags
+
+
+def exposure_text(name: str) -> str:
+    """The "exposed / differentiable" cell of parameter ``name`` in the docs (the plugin
+    docstring and README.md), from :data:`EXPOSED`."""
+    if name not in EXPOSED:
+        return NOT_EXPOSED
+    fibre, multiscale = EXPOSED[name]
+    if fibre == multiscale:
+        return fibre
+    return f"{fibre} at fibre level, {multiscale} multi-scale"
+
+
+def with_flags_column(docstring: str) -> str:
+    """``docstring`` with a "Flags" column (:func:`exposure_text`) added to its list-table
+    of parameters: the table in one place, the flags in another (a row naming several
+    parameters needs them to agree)."""
+    start = docstring.index("\n   * - ", docstring.index(".. list-table::"))
+    end = docstring.index("\n\n", start)  # the first blank line after the first row
+    head, table, tail = docstring[:start], docstring[start:end], docstring[end:]
+    rows = table.split("\n   * - ")
+    out = [rows[0]]
+    for row in rows[1:]:
+        names = [n.strip() for n in row.split("\n", 1)[0].split(",")]
+        if names == ["Parameter"]:
+            cell = "Flags"
+        else:
+            cells = {exposure_text(n) for n in names}
+            if len(cells) != 1:
+                raise ValueError(f"cloth docstring: the row for {names} mixes flags {sorted(cells)}")
+            cell = cells.pop()
+        out.append(f"{row}\n     - {cell}")
+    return head + "\n   * - ".join(out) + tail
+
+
+@dataclass(frozen=True)
+class BuildParameters:
+    """What a ``cloth`` BSDF's tables (and its lobe calibration, measured on them) are built
+    from, as given: validated once, here (a changed value is a new instance, validated
+    again). Of these only ``roughness`` is exposed (see ``parameters_changed``); everything
+    else is read when the scene loads."""
+
+    roughness: float = FLOAT_PARAMETERS["roughness"][0]
+    multiscale: bool = True
+    visibility: bool = True
+    unbiased_ccv: bool = False
+    parallax: bool = False
+    direction_bins: int = 0    # 0: from the roughness (:attr:`bins`)
+    visibility_bins: int = 8
+    clusters: int = 8
+    direction_rank: int = 0    # 0: the full table, or a rank by max_table_mib
+    max_table_mib: int = 256
+
+    def __post_init__(self):
+        _check_float("roughness", self.roughness)
+        if 0 < self.direction_bins < 4:
+            raise ParameterError(f"cloth: parameter 'direction_bins' must be 0 (from the roughness) or in "
+                                 f"[4, 64], got {self.direction_bins}")
+        if self.direction_rank > self.bins ** 2:
+            raise ParameterError(f"cloth: parameter 'direction_rank' must be at most direction_bins^2 = "
+                                 f"{self.bins ** 2} (0: the full directional SAT), got {self.direction_rank}"
+                                 + ("" if self.direction_bins else f" (roughness {self.roughness:g} gives "
+                                    f"{self.bins} direction bins)"))
+
+    @property
+    def bins(self) -> int:
+        """Half-vector bins per side of the directional SAT."""
+        from ..precompute.direction_bins import bins_for_roughness
+        return self.direction_bins or bins_for_roughness(self.roughness)
+
+    @property
+    def needs_tables(self) -> bool:
+        return self.multiscale or self.visibility or self.parallax
+
+    @property
+    def tables_read_roughness(self) -> bool:
+        """Whether shading reads a table built from the roughness (the directional SATs)."""
+        return self.multiscale
+
+    def with_roughness(self, roughness: float) -> "BuildParameters":
+        return replace(self, roughness=float(roughness))
+
+    def table_key(self, height: int, width: int):
+        """(TableKey, why) of the tables for a (height, width) tile: ``why`` is non-empty
+        when the memory budget chose the rank (see ``choose_direction_rank``)."""
+        from ..precompute.tables import TableKey, choose_direction_rank
+
+        rank, why = choose_direction_rank(height, width, self.bins, self.direction_rank, self.max_table_mib)
+        key = TableKey(self.roughness, dr=self.bins, dv=self.visibility_bins, clusters=self.clusters,
+                       per_cluster_sat=self.unbiased_ccv, d_rank=rank, parallax=self.parallax)
+        return key, why
+
+
 @dataclass
 class ClothParameters:
+    """Every parameter of a ``cloth`` BSDF as read: the maps' source, the shading values
+    (exposed by ``traverse``) and the :class:`BuildParameters`."""
     pattern: str
     resolution: int | None
     uv_scale: float
     uv_scale_v: float
     uv_unit: float
-    roughness: float
     thickness: float
     sheen_roughness: float
     sheen_thickness: float
     textures: dict  # name -> mi.Texture
-    multiscale: bool = True
-    visibility: bool = True
-    unbiased_ccv: bool = False
-    parallax: bool = False
-    direction_bins: int = 0
-    visibility_bins: int = 8
-    clusters: int = 8
-    direction_rank: int = 0
-    max_table_mib: int = 256
+    build: BuildParameters
     footprint_slices: int = 1
     fabric: object = None           # the Fabric the defaults came from (mscloth.fabrics)
     pattern_given: bool = True      # False: the maps are the fabric's own
 
+    @property
+    def roughness(self) -> float:
+        return self.build.roughness
 
-def _read_float(props, name, default=None):
+
+def _check_float(name, value, where="cloth"):
+    """``value`` as a float if parameter ``name`` allows it, else a ParameterError naming
+    ``where`` (the plugin, or which cloth), the parameter and its range."""
     _, low, high, low_inclusive, meaning = FLOAT_PARAMETERS[name]
-    if name not in props:
-        return FLOAT_PARAMETERS[name][0] if default is None else default
-    value = props.get(name)
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ParameterError(f"cloth: parameter '{name}' ({meaning}) must be a number, got {value!r}")
+        raise ParameterError(f"{where}: parameter '{name}' ({meaning}) must be a number, got {value!r}")
     value = float(value)
     ok_low = value >= low if low_inclusive else value > low
     if not (math.isfinite(value) and ok_low and value <= high):
         bracket = "[" if low_inclusive else "("
         raise ParameterError(
-            f"cloth: parameter '{name}' ({meaning}) must be in {bracket}{low:g}, {high:g}], got {value:g}")
+            f"{where}: parameter '{name}' ({meaning}) must be in {bracket}{low:g}, {high:g}], got {value:g}")
     return value
+
+
+def _read_float(props, name, default=None):
+    if name not in props:
+        return FLOAT_PARAMETERS[name][0] if default is None else default
+    return _check_float(name, props.get(name))
 
 
 def _constant_channels(texture) -> np.ndarray:
@@ -230,19 +358,11 @@ def read_parameters(props) -> ClothParameters:
                                  f"[{low}, {high}], got {value!r}")
         switches[name] = value
 
-    if switches["direction_bins"] == 0:
-        from ..precompute.direction_bins import bins_for_roughness
-        switches["direction_bins"] = bins_for_roughness(floats["roughness"])
-    elif switches["direction_bins"] < 4:
-        raise ParameterError(f"cloth: parameter 'direction_bins' must be 0 (from the roughness) or in [4, 64], "
-                             f"got {switches['direction_bins']}")
-    bins = switches["direction_bins"] ** 2
-    if switches["direction_rank"] > bins:
-        raise ParameterError(f"cloth: parameter 'direction_rank' must be at most direction_bins^2 = {bins} "
-                             f"(0: the full directional SAT), got {switches['direction_rank']}")
-    return ClothParameters(pattern=pattern, resolution=resolution or None, textures=textures,
-                           fabric=preset,
-                           pattern_given=preset is None or "pattern" in props, **floats, **switches)
+    footprint_slices = switches.pop("footprint_slices")
+    build = BuildParameters(roughness=floats.pop("roughness"), **switches)
+    return ClothParameters(pattern=pattern, resolution=resolution or None, textures=textures, build=build,
+                           footprint_slices=footprint_slices, fabric=preset,
+                           pattern_given=preset is None or "pattern" in props, **floats)
 
 
 def cloth_maps(p: ClothParameters):

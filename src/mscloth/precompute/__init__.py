@@ -6,12 +6,12 @@ from .direction_bins import (bilinear_bins, bin_centres, direction_to_bin, fold_
                              hemisphere_to_square, square_to_hemisphere)
 from .parallax import parallax_table
 from .summed_area import ResidualSAT, build_sat, rect_mean, rect_sum
-from .tables import (FORMAT_VERSION, MultiscaleTables, build_tables, default_cache_dir,
+from .tables import (FORMAT_VERSION, MultiscaleTables, TableKey, build_tables, default_cache_dir,
                      load_or_build, sggx_fibre_ndf, table_key)
 from .visibility import cluster_visibility, visibility_table
 
 __all__ = [
-    "FORMAT_VERSION", "MultiscaleTables", "ResidualSAT", "bilinear_bins", "bin_centres", "build_sat",
+    "FORMAT_VERSION", "MultiscaleTables", "ResidualSAT", "TableKey", "bilinear_bins", "bin_centres", "build_sat",
     "build_tables", "cluster_visibility", "default_cache_dir", "direction_to_bin", "fold_upper",
     "hemisphere_to_square", "load_or_build", "parallax_table", "rect_mean", "rect_sum",
     "sggx_fibre_ndf", "square_to_hemisphere", "table_key", "visibility_table",

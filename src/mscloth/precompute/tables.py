@@ -56,7 +56,7 @@ from .parallax import parallax_table
 from .summed_area import _residual_cumsum, build_sat, rect_mean, rect_sum
 from .visibility import cluster_visibility, visibility_table
 
-__all__ = ["FORMAT_VERSION", "MultiscaleTables", "build_tables", "load_or_build", "table_key",
+__all__ = ["FORMAT_VERSION", "MultiscaleTables", "TableKey", "build_tables", "load_or_build", "table_key",
            "default_cache_dir", "sggx_fibre_ndf"]
 
 FORMAT_VERSION = 2
@@ -222,37 +222,82 @@ def choose_direction_rank(height: int, width: int, dr: int, requested: int, max_
                   f"({rank * per_channel:.0f} MiB; set direction_rank or max_table_mib to choose)")
 
 
-def _params(roughness, dr=16, dv=8, clusters=8, per_cluster_sat=False, seed=0, iters=30,
-            max_step=0.5, vis_eps=1e-4, fast_visibility=True, d_rank=0, parallax=False) -> dict:
-    try:
-        alpha = float(roughness)
-    except (TypeError, ValueError):
-        raise ParameterError(f"roughness must be a number in (0, 1], got {roughness!r}") from None
-    if not (math.isfinite(alpha) and 0.0 < alpha <= 1.0):
-        raise ParameterError(f"roughness must be a number in (0, 1], got {roughness!r}")
-    step = float(max_step)
-    if not (math.isfinite(step) and 0.0 < step <= 1.0):
-        raise ParameterError(f"max_step must be in (0, 1] texels, got {max_step!r}")
-    eps = float(vis_eps)
-    if not (math.isfinite(eps) and eps >= 0.0):
-        raise ParameterError(f"vis_eps must be >= 0, got {vis_eps!r}")
-    dr = _int_param("dr", dr, 1, 256)
-    d_rank = _int_param("d_rank", d_rank, 0, dr * dr)
-    return {
-        "roughness": alpha,
-        "dr": dr,
-        # 0 or dr*dr: the full directional SAT; a rank equal to the bin count saves nothing.
-        "d_rank": 0 if d_rank == dr * dr else d_rank,
-        "dv": _int_param("dv", dv, 1, 64),
-        "clusters": _int_param("clusters", clusters, 1, 127),
-        "per_cluster_sat": bool(per_cluster_sat),
-        "seed": _int_param("seed", seed, 0, 2**63 - 1),
-        "iters": _int_param("iters", iters, 1, 10000),
-        "max_step": step,
-        "vis_eps": eps,
-        "fast_visibility": bool(fast_visibility),
-        "parallax": bool(parallax),
-    }
+@dataclass(frozen=True)
+class TableKey:
+    """What the tables of one tile are built from besides its maps: with them, all of the
+    cache key (:func:`table_key`). Validated once, here; a changed value is a new key.
+
+    roughness: fibre SGGX alpha in (0, 1] (the directional SATs, their basis and the
+    clusters' mean D). dr: h bins per side of the directional SAT. d_rank: 0 (full) or the
+    rank of its compression. dv: direction bins per side of the visibility and parallax
+    tables. clusters: k of the visibility k-means. per_cluster_sat: the per-cluster SATs.
+    parallax: the parallax table. seed, iters: k-means. max_step, vis_eps, fast_visibility:
+    the visibility march (see :func:`build_tables`)."""
+
+    roughness: float
+    dr: int = 16
+    dv: int = 8
+    clusters: int = 8
+    per_cluster_sat: bool = False
+    seed: int = 0
+    iters: int = 30
+    max_step: float = 0.5
+    vis_eps: float = 1e-4
+    fast_visibility: bool = True
+    d_rank: int = 0
+    parallax: bool = False
+
+    def __post_init__(self):
+        try:
+            alpha = float(self.roughness)
+        except (TypeError, ValueError):
+            raise ParameterError(f"roughness must be a number in (0, 1], got {self.roughness!r}") from None
+        if not (math.isfinite(alpha) and 0.0 < alpha <= 1.0):
+            raise ParameterError(f"roughness must be a number in (0, 1], got {self.roughness!r}")
+        step = float(self.max_step)
+        if not (math.isfinite(step) and 0.0 < step <= 1.0):
+            raise ParameterError(f"max_step must be in (0, 1] texels, got {self.max_step!r}")
+        eps = float(self.vis_eps)
+        if not (math.isfinite(eps) and eps >= 0.0):
+            raise ParameterError(f"vis_eps must be >= 0, got {self.vis_eps!r}")
+        dr = _int_param("dr", self.dr, 1, 256)
+        d_rank = _int_param("d_rank", self.d_rank, 0, dr * dr)
+        normalised = {
+            "roughness": alpha,
+            "dr": dr,
+            # 0 or dr*dr: the full directional SAT; a rank equal to the bin count saves nothing.
+            "d_rank": 0 if d_rank == dr * dr else d_rank,
+            "dv": _int_param("dv", self.dv, 1, 64),
+            "clusters": _int_param("clusters", self.clusters, 1, 127),
+            "per_cluster_sat": bool(self.per_cluster_sat),
+            "seed": _int_param("seed", self.seed, 0, 2**63 - 1),
+            "iters": _int_param("iters", self.iters, 1, 10000),
+            "max_step": step,
+            "vis_eps": eps,
+            "fast_visibility": bool(self.fast_visibility),
+            "parallax": bool(self.parallax),
+        }
+        for name, value in normalised.items():
+            object.__setattr__(self, name, value)
+
+    def as_params(self) -> dict:
+        """The build inputs as :attr:`MultiscaleTables.params` holds them (hashed by
+        :func:`table_key`)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+def _table_key(roughness, **kw) -> TableKey:
+    """``roughness`` if it is a TableKey (then no other build inputs), else a TableKey of it
+    and ``kw``."""
+    if isinstance(roughness, TableKey):
+        if kw:
+            raise TypeError(f"build inputs {sorted(kw)} given with a TableKey")
+        return roughness
+    return TableKey(roughness, **kw)
+
+
+def _params(roughness, **kw) -> dict:
+    return _table_key(roughness, **kw).as_params()
 
 
 def table_key(maps, params: dict) -> str:
@@ -297,7 +342,8 @@ def build_tables(maps, roughness, dr: int = 16, dv: int = 8, clusters: int = 8,
                  workers: int | None = None, label: str = "") -> MultiscaleTables:
     """Build every table of :class:`MultiscaleTables` for ``maps`` (a ClothMaps).
 
-    roughness: fibre SGGX alpha in (0, 1]. dr: h bins per side of the directional SAT.
+    roughness: fibre SGGX alpha in (0, 1], or a :class:`TableKey` (which then gives every
+    build input below, from dr to parallax). dr: h bins per side of the directional SAT.
     dv: direction bins per side of the visibility and parallax tables. clusters: k of the
     visibility k-means (<= 127). per_cluster_sat: also build d_sat_cluster (clusters x the
     memory of d_sat). progress: progress lines on stderr. seed, iters: k-means.
@@ -313,8 +359,15 @@ def build_tables(maps, roughness, dr: int = 16, dv: int = 8, clusters: int = 8,
     workers: threads (default: CPUs, <= 8). label: whose tables these are (e.g. a cloth's id
     and pattern), at the start of every progress line.
     """
-    params = _params(roughness, dr, dv, clusters, per_cluster_sat, seed, iters, max_step,
-                     vis_eps, fast_visibility, d_rank, parallax)
+    if isinstance(roughness, TableKey):
+        params = roughness.as_params()  # the key's own inputs, not this function's defaults
+    else:
+        params = _params(roughness, dr=dr, dv=dv, clusters=clusters, per_cluster_sat=per_cluster_sat,
+                         seed=seed, iters=iters, max_step=max_step, vis_eps=vis_eps,
+                         fast_visibility=fast_visibility, d_rank=d_rank, parallax=parallax)
+    # Everything below reads the validated inputs only.
+    dr, dv, clusters, seed, iters = (params[n] for n in ("dr", "dv", "clusters", "seed", "iters"))
+    per_cluster_sat = params["per_cluster_sat"]
     key = table_key(maps, params)
     prog = Progress(progress, label=label)
     t_start = time.perf_counter()
@@ -627,13 +680,16 @@ def load_or_build(maps, roughness, cache_dir=None, **kw) -> MultiscaleTables:
     Any problem with a cached file (missing sidecar, truncated or corrupt .npz, checksum or
     shape mismatch) gives a warning naming the file, and the tables are rebuilt and rewritten;
     a bad cache is never used. If the cache cannot be written the tables are still returned
-    (with a warning). ``progress``, ``workers`` and ``label`` go to :func:`build_tables`.
+    (with a warning). ``roughness``: the fibre roughness with the other build inputs of
+    :class:`TableKey` as keywords, or a TableKey. ``progress``, ``workers`` and ``label`` go
+    to :func:`build_tables`.
     """
     build_kw = dict(kw)
     progress = build_kw.pop("progress", True)
     workers = build_kw.pop("workers", None)
     label = build_kw.pop("label", "")
-    params = _params(roughness, **build_kw)
+    build_key = _table_key(roughness, **build_kw)
+    params = build_key.as_params()
     key = table_key(maps, params)
     cache_dir = default_cache_dir() if cache_dir is None else Path(cache_dir)
     npz_path, json_path = cache_paths(cache_dir, key)
@@ -646,7 +702,7 @@ def load_or_build(maps, roughness, cache_dir=None, **kw) -> MultiscaleTables:
         except _BadCache as bad:
             warnings.warn(f"mscloth: ignoring cached tables {bad.path}: {bad.reason}; "
                           "rebuilding", RuntimeWarning, stacklevel=2)
-    tables = build_tables(maps, roughness, progress=progress, workers=workers, label=label, **build_kw)
+    tables = build_tables(maps, build_key, progress=progress, workers=workers, label=label)
     try:
         save_tables(tables, cache_dir)
     except OSError as exc:
