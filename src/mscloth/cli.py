@@ -344,7 +344,7 @@ def build_parser() -> argparse.ArgumentParser:
     maps = sub.add_parser("maps", help="generate the fibre-level maps of a pattern (weave, WIF draft, knit)")
     maps.add_argument("pattern", help="pattern name (plain, twill-2-1-S, satin-8-3, basket-2, jersey, rib-2-2, garter, seed) or a .wif file")
     maps.add_argument("--res", type=_positive_int(8, 16384), default=None,
-                      help="texels along u (default: 64 per thread, in [64, 1024])")
+                      help="texels along u (default: 32 per thread, in [128, 320]; knits 64 per wale, in [64, 320]; at least 8 per thread or wale up to 1024)")
     maps.add_argument("--out", required=True, help="output directory")
     maps.add_argument("--force", action="store_true", help="overwrite maps already in --out")
     maps.add_argument("--yarn-width", type=float, default=None, help="yarn width / thread spacing, (0, 1]")
