@@ -120,15 +120,22 @@ def cmd_render(args) -> int:
     if options and args.scene != "swatch":
         raise ClothError(f"--{next(iter(options))} applies to the swatch scene only "
                          f"(mscloth render swatch --fabric NAME), not to {args.scene!r}")
+    if args.scene not in SCENES and not args.scene.lower().endswith(".xml"):
+        raise ClothError(f"unknown scene {args.scene!r}: expected one of {', '.join(SCENES)} or a .xml file")
+    # Loading makes each cloth's maps, builds (or reads) its tables and compiles its
+    # calibration kernels: on a first run, much of the time to the first picture
+    # (bench/first_picture.py). Their compilation is not split out: Mitsuba constructs
+    # plugins on its own threads, and Dr.Jit's kernel history flag is per thread.
+    loading_started = time.perf_counter()
     if args.scene in SCENES:
         w, h = args.res or ((480, 360) if args.scene == "swatch" else (512, 288))
         scene = load_dict(builtin_scene(args.scene, w, h, **options))
-    elif args.scene.lower().endswith(".xml"):
-        scene = _load_scene_file(Path(args.scene), args.res)
     else:
-        raise ClothError(f"unknown scene {args.scene!r}: expected one of {', '.join(SCENES)} or a .xml file")
+        scene = _load_scene_file(Path(args.scene), args.res)
+    loading_seconds = time.perf_counter() - loading_started
     w, h = scene.sensors()[0].film().size()
-    print(f"mscloth render: {args.scene}, {w}x{h}, {args.spp} spp, variant {variant}", flush=True)
+    print(f"mscloth render: {args.scene}, {w}x{h}, {args.spp} spp, variant {variant} "
+          f"(loaded in {loading_seconds:.2f} s)", flush=True)
     started = time.perf_counter()
     with KernelCompilation() as compiling:
         image = render_progressive(scene, args.spp, label="render")
