@@ -16,6 +16,7 @@ test:
 bench: setup
 	$(PY) bench/benchmark.py --out bench/RESULTS.md
 	$(PY) bench/footprint_estimator.py --set resolution=128 --out bench/RESULTS.md
+	$(PY) bench/first_picture.py --out bench/RESULTS.md
 
 clean:
 	rm -rf out .pytest_cache

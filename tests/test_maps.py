@@ -337,6 +337,18 @@ def test_builtin_plain_and_cache():
     assert resolve_pattern("plain", 64).resolution == (64, 64)
 
 
+def test_default_resolution_follows_threads_within_bounds():
+    """32 texels per thread within [128, 320] (issue 22: the tables' build and disk), knits 64
+    per wale within [64, 320], but at least 8 per thread or wale, up to 1024."""
+    from types import SimpleNamespace
+
+    from mscloth.maps.builtin import default_resolution
+    threads = {2: 128, 5: 160, 8: 256, 24: 320, 64: 512, 200: 1024}
+    assert {n: default_resolution(SimpleNamespace(n_warp=n)) for n in threads} == threads
+    wales = {1: 64, 3: 192, 8: 320, 100: 800}
+    assert {n: default_resolution(SimpleNamespace(n_wales=n)) for n in wales} == wales
+
+
 def test_resolve_directory(plain_maps, tmp_path):
     plain_maps.save(tmp_path / "m")
     loaded = resolve_pattern(str(tmp_path / "m"))

@@ -778,6 +778,16 @@ def test_cache_round_trip(maps_sq, tmp_path, monkeypatch):
     assert t2.params["roughness"] == 0.3 and t2.params["dr"] == 4
 
 
+def test_build_warning_only_when_building(maps_sq, tmp_path):
+    """The rank-compression note is given by the build, not by every load of its tables."""
+    with pytest.warns(RuntimeWarning, match="using rank 4"):
+        t1 = load_or_build(maps_sq, 0.3, cache_dir=tmp_path, build_warning="using rank 4", **CACHE_KW)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        t2 = load_or_build(maps_sq, 0.3, cache_dir=tmp_path, build_warning="using rank 4", **CACHE_KW)
+    _assert_same(t1, t2)
+
+
 def test_cache_key_changes_with_every_parameter(maps_sq, maps_rect, tmp_path):
     t1 = load_or_build(maps_sq, 0.3, cache_dir=tmp_path, **CACHE_KW)
     t2 = load_or_build(maps_sq, 0.31, cache_dir=tmp_path, **CACHE_KW)

@@ -143,13 +143,20 @@ def cmd_render(args) -> int:
                          f"(mscloth render swatch --fabric NAME), not to {args.scene!r}")
     variant = setup_mitsuba(args.variant)
     check_writable(out.parent, target=out)  # before the render, not after it
+    # Loading makes each cloth's maps, builds (or reads) its tables and compiles its
+    # calibration kernels: on a first run, much of the time to the first picture
+    # (bench/first_picture.py). Their compilation is not split out: Mitsuba constructs
+    # plugins on its own threads, and Dr.Jit's kernel history flag is per thread.
+    loading_started = time.perf_counter()
     if args.scene in SCENES:
         w, h = args.res or ((480, 360) if args.scene == "swatch" else (512, 288))
         scene = load_dict(builtin_scene(args.scene, w, h, **options))
     else:
         scene = _load_scene_file(Path(args.scene), args.res)
+    loading_seconds = time.perf_counter() - loading_started
     w, h = scene.sensors()[0].film().size()
-    print(f"mscloth render: {args.scene}, {w}x{h}, {args.spp} spp, variant {variant}", flush=True)
+    print(f"mscloth render: {args.scene}, {w}x{h}, {args.spp} spp, variant {variant} "
+          f"(loaded in {loading_seconds:.2f} s)", flush=True)
     started = time.perf_counter()
     with KernelCompilation() as compiling:
         image = render_progressive(scene, args.spp, label="render")
@@ -377,7 +384,7 @@ def build_parser() -> argparse.ArgumentParser:
     maps = sub.add_parser("maps", help="generate the fibre-level maps of a pattern (weave, WIF draft, knit)")
     maps.add_argument("pattern", help="pattern name (plain, twill-2-1-S, satin-8-3, basket-2, jersey, rib-2-2, garter, seed) or a .wif file")
     maps.add_argument("--res", type=_positive_int(8, 16384), default=None,
-                      help="texels along u (default: 64 per thread, in [64, 1024])")
+                      help="texels along u (default: 32 per thread, in [128, 320]; knits 64 per wale, in [64, 320]; at least 8 per thread or wale up to 1024)")
     maps.add_argument("--out", required=True, help="output directory")
     maps.add_argument("--force", action="store_true", help="overwrite maps already in --out")
     maps.add_argument("--yarn-width", type=float, default=None, help="yarn width / thread spacing, (0, 1]")

@@ -310,10 +310,10 @@ def make_cloth_class():
                 from ..precompute.tables import load_or_build
 
                 key, why = b.table_key(*self.maps.resolution)
-                if why and b.multiscale:
-                    mi.Log(mi.LogLevel.Warn, f"cloth [{self.label}]: {why}")
                 self.direction_rank = key.d_rank
-                tables = load_or_build(self.maps, key, label=self.label)
+                # The rank note comes when the tables are built, not on every cached load.
+                note = f"cloth [{self.label}]: {why}" if why and b.multiscale else ""
+                tables = load_or_build(self.maps, key, label=self.label, build_warning=note)
                 self.table_key = key
                 self.footprint_data = FootprintData(tables, with_sats=b.multiscale, with_parallax=b.parallax)
             # The footprint BSDF; before calibration, which samples it.

@@ -18,10 +18,19 @@ from ..patterns.named import NAMED, is_wif_path, named_pattern, pattern_names
 from .cloth_maps import JSON_NAME, NPZ_NAME, ClothMaps
 from .generate import generate_maps
 
-#: Default sampling of generated patterns: texels per thread (or stitch) along u, within
-#: [MIN, MAX] texels per tile side.
-DEFAULT_TEXELS_PER_THREAD = 64
-MIN_DEFAULT_RESOLUTION, MAX_DEFAULT_RESOLUTION = 64, 1024
+#: Default sampling of generated patterns along u: texels per woven thread and per knit
+#: wale (two legs, so 32 per leg as well), within [MIN, MAX] texels per tile side, but never
+#: under MIN_TEXELS_PER_THREAD per thread or wale (up to LARGEST_DEFAULT_RESOLUTION).
+#: Footprints cover many texels but near the camera, where 32 per thread still show the
+#: yarn's cross-section and twist. Small repeats cost little: the plain weave keeps the 128^2
+#: tile that tests and earlier images use, a one-wale jersey its 64 texels. The cap bounds the
+#: tables' build, memory and disk (issue 22): a 24-thread WIF draft at 64 per thread was
+#: 1024^2 texels, 40 s of tables and 442 MiB on disk; at 320^2 (13 texels per thread) its
+#: full directional SAT fits max_table_mib (no rank compression) in ~120 MiB. Scenes that
+#: come close give ``resolution``.
+DEFAULT_TEXELS_PER_THREAD, DEFAULT_TEXELS_PER_WALE = 32, 64
+MIN_DEFAULT_RESOLUTION, MIN_DEFAULT_KNIT_RESOLUTION, MAX_DEFAULT_RESOLUTION = 128, 64, 320
+MIN_TEXELS_PER_THREAD, LARGEST_DEFAULT_RESOLUTION = 8, 1024
 _CACHE_SIZE = 8  # a 1024^2 tile is ~50 MB; keep the cache bounded
 
 #: Pattern names accepted without arguments (each also takes arguments, see NAMED).
@@ -30,8 +39,14 @@ BUILTIN_PATTERNS = tuple(NAMED)
 
 def default_resolution(pattern) -> int:
     """Texels along u for a generated pattern when the caller gives none."""
-    columns = getattr(pattern, "n_warp", None) or getattr(pattern, "n_wales", None) or 2
-    return int(min(MAX_DEFAULT_RESOLUTION, max(MIN_DEFAULT_RESOLUTION, DEFAULT_TEXELS_PER_THREAD * columns)))
+    wales = getattr(pattern, "n_wales", None)
+    if wales:
+        columns, per_column, least = wales, DEFAULT_TEXELS_PER_WALE, MIN_DEFAULT_KNIT_RESOLUTION
+    else:
+        columns = getattr(pattern, "n_warp", None) or 2
+        per_column, least = DEFAULT_TEXELS_PER_THREAD, MIN_DEFAULT_RESOLUTION
+    texels = min(MAX_DEFAULT_RESOLUTION, max(least, per_column * columns))
+    return int(min(LARGEST_DEFAULT_RESOLUTION, max(texels, MIN_TEXELS_PER_THREAD * columns)))
 
 
 def _resolution_key(resolution):
@@ -133,5 +148,5 @@ def clear_cache() -> None:
     _load_dir.cache_clear()
 
 
-__all__ = ["BUILTIN_PATTERNS", "DEFAULT_TEXELS_PER_THREAD", "clear_cache", "default_resolution",
+__all__ = ["BUILTIN_PATTERNS", "DEFAULT_TEXELS_PER_THREAD", "DEFAULT_TEXELS_PER_WALE", "clear_cache", "default_resolution",
            "resolve_pattern"]

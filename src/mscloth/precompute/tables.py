@@ -683,8 +683,12 @@ def load_or_build(maps, roughness, cache_dir=None, **kw) -> MultiscaleTables:
     (with a warning). ``roughness``: the fibre roughness with the other build inputs of
     :class:`TableKey` as keywords, or a TableKey. ``progress``, ``workers`` and ``label`` go
     to :func:`build_tables`.
+    ``build_warning``: a warning about how the tables are built (e.g. the ``why`` of
+    :func:`choose_direction_rank`), given only when they are built, not on every load of
+    the cached tables.
     """
     build_kw = dict(kw)
+    build_warning = build_kw.pop("build_warning", "")
     progress = build_kw.pop("progress", True)
     workers = build_kw.pop("workers", None)
     label = build_kw.pop("label", "")
@@ -702,6 +706,8 @@ def load_or_build(maps, roughness, cache_dir=None, **kw) -> MultiscaleTables:
         except _BadCache as bad:
             warnings.warn(f"mscloth: ignoring cached tables {bad.path}: {bad.reason}; "
                           "rebuilding", RuntimeWarning, stacklevel=2)
+    if build_warning:
+        warnings.warn(f"mscloth: {build_warning}", RuntimeWarning, stacklevel=2)
     tables = build_tables(maps, build_key, progress=progress, workers=workers, label=label)
     try:
         save_tables(tables, cache_dir)
