@@ -6,6 +6,15 @@ from __future__ import annotations
 import sys
 
 
+def emit(text: str, out: str | None) -> None:
+    """Print a result table and, with ``out``, append it to that Markdown file (make bench
+    collects the scripts' tables in bench/RESULTS.md this way)."""
+    print(text)
+    if out:
+        with open(out, "a") as f:
+            f.write(text + "\n\n")
+
+
 def setup_mitsuba():
     """The default variant and the ``cloth`` plugin, from this checkout's src/."""
     sys.path.insert(0, "src")

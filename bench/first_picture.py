@@ -224,10 +224,10 @@ def main(argv=None) -> int:
             rows.append((case if case == "sphere" else f"wif ({wif.name})", state, run))
             print(f"{case} {state}: {run.wall:.1f} s wall, {run.cpu:.1f} s CPU", file=sys.stderr, flush=True)
     text = table(rows, startup, args.nice, argv if argv is not None else sys.argv[1:])
-    print(text)
-    if args.out:
-        with open(args.out, "a") as f:
-            f.write(text + "\n\n")
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from common import emit
+
+    emit(text, args.out)
     return 0
 
 

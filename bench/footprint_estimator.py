@@ -67,7 +67,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", help="also append the Markdown table to this file")
     args = parser.parse_args(argv)
 
-    from common import parse_settings, set_class_attributes, setup_mitsuba
+    from common import emit, parse_settings, set_class_attributes, setup_mitsuba
     mi = setup_mitsuba()
     set_class_attributes(parse_settings(args.attr))
     extra = parse_settings(args.set)
@@ -88,10 +88,7 @@ def main(argv=None) -> int:
             side = 2 * half
             lines.append(f"| {alpha:g} | {side:g}^2 | {name} | {rel:+.3f} | {bound:.3f} | {ratio:.1e} |")
     text = "\n".join(lines)
-    print(text)
-    if args.out:
-        with open(args.out, "a") as f:
-            f.write(text + "\n\n")
+    emit(text, args.out)
     return 0
 
 
