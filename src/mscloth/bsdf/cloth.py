@@ -86,7 +86,8 @@ marked "—" are read once: reload the scene to change them.
    * - resolution
      - integer
      - 0
-     - Texels along u when generating a pattern (0: 64 per thread, in [64, 1024]).
+     - Texels along u when generating a pattern (0: 32 per thread, in [128, 320]; knits
+       64 per wale, in [64, 320]; at least 8 per thread or wale up to 1024).
    * - uv_scale
      - float
      - 1.0
