@@ -61,6 +61,17 @@ def _resolution_arg(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _swatch_options(args, scene: str) -> dict:
+    """The swatch scene's --fabric, --view and --light that were given; an error for
+    another scene."""
+    options = {name: value for name, value in (("fabric", args.fabric), ("view", args.view),
+                                                 ("light", args.light)) if value is not None}
+    if options and scene != "swatch":
+        raise ClothError(f"--{next(iter(options))} applies to the swatch scene only "
+                         f"(mscloth render swatch --fabric NAME), not to {scene!r}")
+    return options
+
+
 def _load_scene_file(path: Path, res):
     """Load a Mitsuba XML scene, overriding its film's width/height when ``res`` is given and
     naming its cloths after their shapes (:func:`mscloth.loading.name_xml_cloths`)."""
@@ -136,11 +147,7 @@ def cmd_render(args) -> int:
         existing = [p for p in (out, out.with_suffix(".png")) if p.exists()]
         if existing:
             raise ClothError(f"{existing[0]} exists; pass --force to overwrite")
-    options = {name: value for name, value in (("fabric", args.fabric), ("view", args.view),
-                                                 ("light", args.light)) if value is not None}
-    if options and args.scene != "swatch":
-        raise ClothError(f"--{next(iter(options))} applies to the swatch scene only "
-                         f"(mscloth render swatch --fabric NAME), not to {args.scene!r}")
+    options = _swatch_options(args, args.scene)
     variant = setup_mitsuba(args.variant)
     check_writable(out.parent, target=out)  # before the render, not after it
     # Loading makes each cloth's maps, builds (or reads) its tables and compiles its
@@ -186,10 +193,7 @@ def cmd_scene(args) -> int:
     accepted = inspect.signature(SCENES[args.name]).parameters
     kwargs = {key: out.parent.resolve() / sub for key, sub in (("mesh_dir", "meshes"), ("maps_dir", "maps"))
               if key in accepted}
-    options = {name: value for name, value in (("fabric", args.fabric), ("view", args.view),
-                                                 ("light", args.light)) if value is not None}
-    if options and args.name != "swatch":
-        raise ClothError(f"--{next(iter(options))} applies to the swatch scene only, not to {args.name!r}")
+    options = _swatch_options(args, args.name)
     scene = SCENES[args.name](w, h, **kwargs, **options)
     for node in scene.values():
         if isinstance(node, dict) and node.get("type") == "ply":

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ParameterError
+from .maps.generator_support import srgb_to_linear
 
 #: Texels along one warp end (knits: one wale) in a preset's maps when the caller gives no
 #: resolution: enough for the yarn's cross-section and its twisted fibres.
@@ -123,11 +124,6 @@ class Fabric:
         s, w = self.warp_spacing_mm, self.cover[0] * self.warp_spacing_mm
         return float(min(2.0, 2.0 * s * math.tan(math.radians(self.inclination_deg)) / (math.pi * w)))
 
-    def tile_size_mm(self) -> tuple[float, float]:
-        """(width, height) of one tile of this fabric's maps, in mm."""
-        maps = self.maps(MIN_TILE_TEXELS)
-        return tuple(maps.meta["tile_size_mm"])
-
     # ------------------------------------------------------------------ maps
     def default_resolution(self) -> int:
         """Texels along u: ``texels_per_thread`` per warp end (twice that per wale: a knit's
@@ -143,7 +139,7 @@ class Fabric:
     def bsdf_parameters(self) -> dict:
         """The ``cloth`` parameters this preset sets (floats, and sRGB colours as Mitsuba
         ``rgb`` dictionaries); the maps carry the yarn colours."""
-        rgb = {"type": "rgb", "value": [float(c) for c in _srgb_to_linear(self.sheen_color)]}
+        rgb = {"type": "rgb", "value": [float(c) for c in srgb_to_linear(self.sheen_color)]}
         return {"roughness": self.roughness, "thickness": self.thickness,
                 "specular_albedo": self.specular_albedo,
                 "specular_transmittance": self.specular_transmittance,
@@ -151,11 +147,6 @@ class Fabric:
                 "diffuse_transmittance": self.diffuse_transmittance,
                 "sheen_color": rgb, "sheen_roughness": self.sheen_roughness,
                 "sheen_thickness": self.sheen_thickness}
-
-
-def _srgb_to_linear(c) -> np.ndarray:
-    c = np.asarray(c, dtype=float)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
 
 
 def _pattern_columns(fabric: Fabric) -> int:
