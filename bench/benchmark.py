@@ -167,8 +167,8 @@ def bench_bsdf_calls(lanes: int = 1 << 21, repeats: int = 7) -> list[tuple[str, 
     groups = lanes // CALL_LANES_PER_UV
     si.uv = mi.Point2f(*(lane_values(np.repeat(rng.random(groups), CALL_LANES_PER_UV)) for _ in range(2)))
     si.p = mi.Point3f(*(lane_values(rng.random(lanes)) for _ in range(3)))
-    texels_u = cloth["uv_scale"] * bsdfs["cloth (mscloth, multi-scale)"].tile_w
-    texels_v = cloth["uv_scale_v"] * bsdfs["cloth (mscloth, multi-scale)"].tile_h
+    texels_u = cloth["uv_scale"] * bsdfs["cloth (mscloth, multi-scale)"].fibre.tile.tile_w
+    texels_v = cloth["uv_scale_v"] * bsdfs["cloth (mscloth, multi-scale)"].fibre.tile.tile_h
     si.duv_dx = mi.Vector2f(CALL_FOOTPRINT_TEXELS / texels_u, 0.0)
     si.duv_dy = mi.Vector2f(0.0, CALL_FOOTPRINT_TEXELS / texels_v)
     si.n = mi.Normal3f(0.0, 0.0, 1.0)

@@ -42,7 +42,7 @@ def measure(params: dict, halves, n_ms: int = 20000, n_bf: int = 100000, uv=(0.3
     from mscloth import validation
 
     bsdf = mi.load_dict(params)
-    tile = bsdf.tile_w
+    tile = bsdf.fibre.tile.tile_w
     rows = []
     for half in halves:
         half = -half * tile if half < 0 else half

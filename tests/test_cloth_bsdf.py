@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import mscloth
-from mscloth.bsdf.cloth import GAP, SHEEN
+from mscloth.bsdf.lobes import GAP, SHEEN
 
 from cloth_fixtures import gap_texel, make_si, non_delta_context, uv_of, yarn_texels
 
@@ -112,7 +112,7 @@ def test_footprint_reciprocity(bsdf, half_texels):
     n = 50_000
     wi, wo = random_directions(rng, n), random_directions(rng, n)
     uv = pt2(random_uv(rng, n))
-    d = 2.0 * half_texels / bsdf.tile_w
+    d = 2.0 * half_texels / bsdf.fibre.tile.tile_w
 
     def footprint_si(w):
         si = make_si(vec(w), uv, n)
@@ -260,7 +260,7 @@ def test_zero_parameters_stay_scalars_after_shading_lanes():
                                 pt2(np.full((n, 2), 0.4)))
         assert np3(weight).shape == (n, 3) and np.all(np.isfinite(np3(weight)))
     for name in ("sheen_thickness", "sheen_roughness", "roughness", "thickness", "uv_scale"):
-        assert dr.width(getattr(bsdf, name)) == 1, name
+        assert dr.width(getattr(bsdf.params, name)) == 1, name
 
 
 def test_two_cloth_bsdfs_that_differ_in_parameters_run_as_one_callable():
@@ -276,7 +276,7 @@ def test_two_cloth_bsdfs_that_differ_in_parameters_run_as_one_callable():
     b = mi.load_dict(dict(CLOTH, multiscale=False, roughness=0.2, thickness=3.0, sheen_thickness=0.1,
                           specular_albedo={"type": "rgb", "value": [0.2, 0.3, 0.1]}, diffuse_transmittance=0.05))
     for name in ("roughness", "thickness", "sheen_roughness", "sheen_thickness", "uv_scale"):
-        assert getattr(b, name).state == dr.VarState.Evaluated, name
+        assert getattr(b.params, name).state == dr.VarState.Evaluated, name
     n = 64
     rng = np.random.default_rng(8)
     si = make_si(vec(np.repeat([[0.3, 0.2, 0.93]], n, axis=0)), pt2(random_uv(rng, n)), n)
@@ -304,13 +304,13 @@ def test_cloth_bsdfs_with_the_same_fuzz_share_one_sheen_table():
     a = mi.load_dict(dict(CLOTH, multiscale=False))
     b = mi.load_dict(dict(CLOTH, multiscale=False, roughness=0.2, sheen_color=0.3))
     c = mi.load_dict(dict(CLOTH, multiscale=False, sheen_thickness=0.25))
-    assert a.sheen_sampler is b.sheen_sampler
-    assert c.sheen_sampler is not a.sheen_sampler
-    assert not np.allclose(c.sheen_sampler.density, a.sheen_sampler.density)
+    assert a.fibre.samplers.sheen is b.fibre.samplers.sheen
+    assert c.fibre.samplers.sheen is not a.fibre.samplers.sheen
+    assert not np.allclose(c.fibre.samplers.sheen.density, a.fibre.samplers.sheen.density)
     # The tables are held by the BSDFs alone: the last one gone, its table goes too.
     import gc
     import weakref
-    table = weakref.ref(c.sheen_sampler)
+    table = weakref.ref(c.fibre.samplers.sheen)
     del c
     gc.collect()
     assert table() is None
@@ -335,8 +335,8 @@ def test_gap_transmission_of_a_footprint_is_its_gap_lobe():
     bsdf = mi.load_dict(dict(CLOTH, visibility=False))
     n = 256
     rng = np.random.default_rng(9)
-    su, sv = (float(np.array(getattr(bsdf, k))[0]) for k in ("uv_scale", "uv_scale_v"))
-    W, H = bsdf.tile_w, bsdf.tile_h
+    su, sv = (float(np.array(getattr(bsdf.params, k))[0]) for k in ("uv_scale", "uv_scale_v"))
+    W, H = bsdf.fibre.tile.tile_w, bsdf.fibre.tile.tile_h
     # A gap-free spot: a texel whose 7 x 5 neighbourhood is all yarn (what a 2.3 x 1.6
     # texel box, rounded either way, can reach).
     ix, iy = np.meshgrid(np.arange(W), np.arange(H))
@@ -357,8 +357,8 @@ def test_gap_transmission_of_a_footprint_is_its_gap_lobe():
         si.duv_dx = mi.Vector2f(width / (su * W), 0.0)
         si.duv_dy = mi.Vector2f(0.0, 0.7 * width / (sv * H))
         got = np.array(bsdf.gap_transmission(si))
-        fr = bsdf.frame(si, True)
-        t2 = float(np.array(fr["t_sheen_i"])[0]) ** 2
+        fr = bsdf.fibre.frame(si, True)
+        t2 = float(np.array(fr.t_sheen_i)[0]) ** 2
         # Lanes shaded as a footprint (all of them from 8 texels on) see its yarn mean, the
         # others (a 2.3 x 1.6 texel footprint is mostly shaded fibre level) their point's texel.
         xi, _, u_choice = bsdf.estimator.shading_hash(si)
@@ -366,7 +366,7 @@ def test_gap_transmission_of_a_footprint_is_its_gap_lobe():
         use = np.broadcast_to(np.array(fp.use), (n,))
         assert use.all() if width > 4 else 0 < use.mean() < 1
         footprint = np.array(bsdf.estimator.state(si, fr, [True] * 6).yarn_mean)
-        point = np.array(bsdf.texel(fr, *bsdf.estimator.point_in_footprint(fr, fp, xi))["yarn"])
+        point = np.array(bsdf.fibre.texel(fr, *bsdf.estimator.point_in_footprint(fr, fp, xi)).yarn)
         lobe = np.where(use, footprint, point)
         np.testing.assert_allclose(got, t2 * (1.0 - lobe), rtol=1e-5, atol=1e-7)
         assert np.all((got >= 0.0) & (got <= t2 * (1.0 + 1e-6)))
@@ -395,12 +395,12 @@ def test_gap_transmission_skips_the_tables_only_for_lanes_without_a_footprint():
     wi[:, 2] = np.abs(wi[:, 2]) + 0.2
     wi /= np.linalg.norm(wi, axis=1, keepdims=True)
     uv = rng.random((n, 2))
-    width = np.where(np.arange(n) % 3 == 0, 0.0, rng.uniform(1.5, 30.0, n)) / bsdf.tile_w
+    width = np.where(np.arange(n) % 3 == 0, 0.0, rng.uniform(1.5, 30.0, n)) / bsdf.fibre.tile.tile_w
 
     def interaction(lanes):
         si = make_si(vec(wi[lanes]), mi.Point2f(*uv[lanes].T), len(lanes))
         si.duv_dx = mi.Vector2f(mi.Float(width[lanes]), 0.0)
-        si.duv_dy = mi.Vector2f(0.0, mi.Float(0.8 * width[lanes] * bsdf.tile_w / bsdf.tile_h))
+        si.duv_dy = mi.Vector2f(0.0, mi.Float(0.8 * width[lanes] * bsdf.fibre.tile.tile_w / bsdf.fibre.tile.tile_h))
         return si
 
     def call(lanes):
@@ -412,7 +412,7 @@ def test_gap_transmission_skips_the_tables_only_for_lanes_without_a_footprint():
     np.testing.assert_allclose(mixed[point], call(point), rtol=1e-6, atol=1e-7)
     np.testing.assert_allclose(mixed[footprint], call(footprint), rtol=1e-5, atol=1e-6)
     # Points see one texel: no gap (0) or the gap (T_sheen^2); footprints, fractions between.
-    t2 = np.array(bsdf.frame(interaction(point), True)["t_sheen_i"]) ** 2
+    t2 = np.array(bsdf.fibre.frame(interaction(point), True).t_sheen_i) ** 2
     assert np.all(np.isclose(mixed[point], 0.0, atol=1e-7) | np.isclose(mixed[point], t2, rtol=1e-5))
     assert np.any(mixed[point] > 0.0) and np.any(mixed[point] == 0.0)
     assert np.any((mixed[footprint] > 0.0) & (mixed[footprint] < 0.9 * np.max(t2)))

@@ -56,9 +56,9 @@ def test_maps_have_the_stated_thread_count_and_gap_fraction(name):
 def test_fabric_sets_defaults_that_parameters_override():
     b = mi.load_dict({"type": "cloth", "fabric": "denim", "roughness": 0.2, "multiscale": False,
                       "visibility": False})
-    assert dr.allclose(b.roughness, 0.2)
-    assert dr.allclose(b.thickness, fabric("denim").thickness)
-    assert dr.allclose(b.sheen_thickness, fabric("denim").sheen_thickness)
+    assert dr.allclose(b.params.roughness, 0.2)
+    assert dr.allclose(b.params.thickness, fabric("denim").thickness)
+    assert dr.allclose(b.params.sheen_thickness, fabric("denim").sheen_thickness)
     assert b.maps.meta["fabric"] == "denim"
 
 
@@ -93,7 +93,7 @@ def test_same_fabric_same_yarn_size_whatever_the_uv_unit():
     common = {"type": "cloth", "fabric": "denim", "multiscale": False, "visibility": False}
     metres = mi.load_dict(dict(common, uv_unit=1.0))
     decimetres = mi.load_dict(dict(common, uv_unit=0.1))
-    assert dr.allclose(metres.uv_scale, 10.0 * decimetres.uv_scale)
+    assert dr.allclose(metres.params.uv_scale, 10.0 * decimetres.params.uv_scale)
     a = _eval_along(metres, 1e-3, x_mm)
     b = _eval_along(decimetres, 1e-2, x_mm)
     assert np.std(a) > 0.05 * np.mean(a)  # the weave varies along the line
@@ -101,7 +101,7 @@ def test_same_fabric_same_yarn_size_whatever_the_uv_unit():
     # One tile per tile_size_mm: a fabric's default reads UVs in metres.
     default = mi.load_dict(common)
     width_mm = default.maps.meta["tile_size_mm"][0]
-    assert dr.allclose(default.uv_scale, 1000.0 / width_mm)
+    assert dr.allclose(default.params.uv_scale, 1000.0 / width_mm)
 
 
 def test_float_heights_arch_long_floats_and_keep_plain_weave():
@@ -157,8 +157,8 @@ def test_fabric_file_starts_from_a_base_and_resolves_beside_the_scene(tmp_path, 
     scene = load_file(str(sub / "scene.xml"))
     bsdf = scene.shapes()[0].bsdf()
     assert bsdf.maps.meta["fabric"] == "black-denim"
-    assert dr.allclose(bsdf.roughness, 0.45)
-    assert dr.allclose(bsdf.thickness, fabric("denim").thickness)  # from the base
+    assert dr.allclose(bsdf.params.roughness, 0.45)
+    assert dr.allclose(bsdf.params.thickness, fabric("denim").thickness)  # from the base
     warp = bsdf.maps.albedo[bsdf.maps.yarn_id == 0]
     assert np.allclose(warp, (0.05 / 12.92), atol=1e-4)  # sRGB 0.05 -> linear
 

@@ -245,17 +245,17 @@ def test_a_roughness_the_tables_cannot_take_is_a_clear_error():
 def test_changed_shading_parameters_are_checked_and_rebuild_the_samplers():
     bsdf = mi.load_dict({"type": "cloth", "multiscale": False, "visibility": False})
     params = mi.traverse(bsdf)
-    sampler = bsdf.sheen_sampler
+    sampler = bsdf.fibre.samplers.sheen
     params["sheen_thickness"] = 0.7
     params.update()
     # The table a scene with sheen_thickness 0.7 has (shared: the same one).
-    assert bsdf.sheen_sampler is not sampler
-    assert bsdf.sheen_sampler is mi.load_dict({"type": "cloth", "multiscale": False, "visibility": False,
-                                               "sheen_thickness": 0.7}).sheen_sampler
+    assert bsdf.fibre.samplers.sheen is not sampler
+    assert bsdf.fibre.samplers.sheen is mi.load_dict({"type": "cloth", "multiscale": False, "visibility": False,
+                                               "sheen_thickness": 0.7}).fibre.samplers.sheen
     # uv_scale_v was derived from uv_scale (and the square tile): it still is.
     params["uv_scale"] = 3.0
     params.update()
-    assert float(bsdf.uv_scale_v[0]) == 3.0
+    assert float(bsdf.params.uv_scale_v[0]) == 3.0
     params["thickness"] = -1.0
     with pytest.raises(ParameterError, match=r"cloth \[.*\]: parameter 'thickness' .* got -1"):
         params.update()

@@ -36,14 +36,14 @@ def test_calibrated_proxies_average_to_the_lobe_albedos():
     (mean weight of lobe-only samples) equals its mean calibrated proxy within 5 standard
     errors of both estimates and of the table's own measurement (1024 lanes)."""
     bsdf = mi.load_dict(TWILL)
-    cal = bsdf.lobe_calibration
+    cal = bsdf.fibre.calibration
     nodes = cal.nodes
     n = 16384
     for j in (3, 8, 13):
         mu = (j + 0.5) / nodes
         assert np.all(cal.ratios[:, j] > MIN_RATIO * cal.ratios.max(axis=1))  # not floored
         si, s1, s2 = lanes_at(mu, n, seed=100 + j)
-        proxies = cal.scale(bsdf.point_proxies(si), si.wi.z)
+        proxies = cal.scale(bsdf.fibre.point_proxies(si), si.wi.z)
         for slot, comps in CALIBRATED:
             lanes = np.zeros(n)
             for c in comps:
@@ -65,7 +65,7 @@ def weight_relvar(bsdf, theta_deg, n=200_000, footprint_texels=0.0):
     t = np.radians(theta_deg)
     si, s1, s2 = lanes_at(np.cos(t), n, seed=5)
     if footprint_texels:
-        d = footprint_texels / bsdf.tile_w
+        d = footprint_texels / bsdf.fibre.tile.tile_w
         si.uv = mi.Point2f(0.37, 0.61)
         si.duv_dx = mi.Vector2f(d, 0.0)
         si.duv_dy = mi.Vector2f(0.0, d)
@@ -80,7 +80,7 @@ def test_calibration_cuts_the_variance_of_footprint_samples():
     at most half of the raw proxies' (measured: 0.19 against 0.66)."""
     bsdf = mi.load_dict(dict(TWILL, multiscale=True))
     calibrated = weight_relvar(bsdf, 60.0, footprint_texels=64.0)
-    bsdf.lobe_calibration = bsdf.footprint_calibration = None
+    bsdf.fibre.calibration = bsdf.estimator.calibration = None
     raw = weight_relvar(bsdf, 60.0, footprint_texels=64.0)
     n = 200_000
     se = calibrated[0] * np.sqrt((calibrated[1] + raw[1]) / n)
@@ -96,12 +96,12 @@ def test_share_factors_cut_the_variance_of_footprint_samples(theta):
     60 degrees, 0.34x / 0.38x). The factors stay within
     their bounds, and the fibre-level sampler keeps the albedo ratios."""
     bsdf = mi.load_dict(dict(TWILL, multiscale=True))
-    factors = bsdf.footprint_calibration.factors
+    factors = bsdf.estimator.calibration.factors
     assert np.all((factors >= 1.0 / MAX_SHARE_FACTOR) & (factors <= MAX_SHARE_FACTOR))
-    assert np.all(bsdf.lobe_calibration.factors == 1.0)
-    assert np.array_equal(bsdf.footprint_calibration.albedo_ratios, bsdf.lobe_calibration.albedo_ratios)
+    assert np.all(bsdf.fibre.calibration.factors == 1.0)
+    assert np.array_equal(bsdf.estimator.calibration.albedo_ratios, bsdf.fibre.calibration.albedo_ratios)
     shared = weight_relvar(bsdf, theta, footprint_texels=64.0)
-    bsdf.footprint_calibration = LobeCalibration(bsdf.lobe_calibration.albedo_ratios)
+    bsdf.estimator.calibration = LobeCalibration(bsdf.fibre.calibration.albedo_ratios)
     albedo_only = weight_relvar(bsdf, theta, footprint_texels=64.0)
     n = 200_000
     se = shared[0] * np.sqrt((shared[1] + albedo_only[1]) / n)

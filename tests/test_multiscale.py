@@ -7,6 +7,7 @@ import pytest
 
 import mscloth
 from mscloth import validation
+from mscloth.bsdf.lobes import enabled_lobes
 
 from cloth_fixtures import N_TEXELS, make_si, non_delta_context
 
@@ -294,7 +295,7 @@ def sheared_si(n, uv, a_texels, shear, wi):
 
 
 def probe_boxes(bsdf, si, u_probe):
-    fp = bsdf.estimator.footprint(si, bsdf.frame(si, True), mi.Float(0.0), mi.Float(u_probe))
+    fp = bsdf.estimator.footprint(si, bsdf.fibre.frame(si, True), mi.Float(0.0), mi.Float(u_probe))
     return np.array([np.asarray(v) for v in fp.box]).T  # (n, 4)
 
 
@@ -348,13 +349,13 @@ def test_sheared_footprint_matches_brute_force_over_the_parallelogram(a, shear):
     for wi, wo in DIRECTIONS[:3]:
         n = 20000
         si = sheared_si(n, uv, a, shear, unit(wi))
-        fr = bsdf.frame(si, True)
-        enabled = bsdf.enabled(ctx)
+        fr = bsdf.fibre.frame(si, True)
+        enabled = enabled_lobes(ctx)
         rng = np.random.default_rng(12)
         numbers = (mi.Point2f(rng.random(n), rng.random(n)), mi.Point2f(rng.random(n), rng.random(n)),
                    mi.Float(rng.random(n)))
         st = bsdf.estimator.state(si, fr, enabled, *numbers)
-        ms = np.array(bsdf.estimator.eval(fr, st, bsdf.mirror(fr, mi.Vector3f(unit(wo))), enabled))[0]
+        ms = np.array(bsdf.estimator.eval(fr, st, fr.mirror(mi.Vector3f(unit(wo))), enabled))[0]
         bf_mean, bf_err = validation.parallelogram_brute_force(params, uv, a, shear, N_TEXELS, wi, wo)
         ms_mean, ms_err = ms.mean(), ms.std() / np.sqrt(n)
         tolerance = 5.0 * np.hypot(ms_err, bf_err) + APPROXIMATION * abs(bf_mean)
@@ -377,7 +378,7 @@ def test_small_footprints_blend_into_fibre_level_shading():
             length = side * max(1.0, np.hypot(shear, 1.0))
             covered = max(length, 1.0) * max(side * side / length, 1.0)
             expected = np.clip((covered - lo) / (hi - lo), 0.0, 1.0)
-            use = np.array(bsdf.estimator.footprint(si, bsdf.frame(si, True), bsdf.estimator.shading_hash(si)[2]).use)
+            use = np.array(bsdf.estimator.footprint(si, bsdf.fibre.frame(si, True), bsdf.estimator.shading_hash(si)[2]).use)
             assert abs(use.mean() - expected) <= 5.0 * np.sqrt(expected * (1 - expected) / n) + 1e-9, \
                 (texels, shear, use.mean(), expected)
 
@@ -431,7 +432,7 @@ def test_footprint_means_are_means_and_lobe_choices_a_distribution():
     size[2] *= rng.random(n) < 0.5
     si.duv_dx = mi.Vector2f(size[0], size[1])
     si.duv_dy = mi.Vector2f(size[2], size[3])
-    fr = bsdf.frame(si, True)
+    fr = bsdf.fibre.frame(si, True)
     st = bsdf.estimator.state(si, fr, [True] * 6)
     use = np.array(bsdf.estimator.footprint(si, fr, bsdf.estimator.shading_hash(si)[2]).use)
     assert use.mean() > 0.3

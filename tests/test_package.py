@@ -57,15 +57,15 @@ def test_scalar_variant_agrees_with_llvm(footprint):
         mscloth.register()
         bsdf = mi.load_dict({"type": "cloth"})
         if ratios:
-            assert bsdf.lobe_calibration is None
-            assert isinstance(bsdf.sheen_sampler, sheen.FoldedSheenSampler)
-            bsdf.lobe_calibration = LobeCalibration(ratios[0])
-            bsdf.footprint_calibration = LobeCalibration(*ratios[1])
+            assert bsdf.fibre.calibration is None
+            assert isinstance(bsdf.fibre.samplers.sheen, sheen.FoldedSheenSampler)
+            bsdf.fibre.calibration = LobeCalibration(ratios[0])
+            bsdf.estimator.calibration = LobeCalibration(*ratios[1])
         else:
-            assert isinstance(bsdf.sheen_sampler, sheen.TabulatedSheenSampler)
-            ratios.append(bsdf.lobe_calibration.ratios)
-            ratios.append((bsdf.footprint_calibration.albedo_ratios, bsdf.footprint_calibration.factors))
-            bsdf.sheen_sampler = sheen.FoldedSheenSampler(bsdf.sheen_roughness)
+            assert isinstance(bsdf.fibre.samplers.sheen, sheen.TabulatedSheenSampler)
+            ratios.append(bsdf.fibre.calibration.ratios)
+            ratios.append((bsdf.estimator.calibration.albedo_ratios, bsdf.estimator.calibration.factors))
+            bsdf.fibre.samplers.sheen = sheen.FoldedSheenSampler(bsdf.params.sheen_roughness)
         si = dr.zeros(mi.SurfaceInteraction3f)
         si.wi = dr.normalize(mi.Vector3f(wi))
         si.uv = mi.Point2f(uv)

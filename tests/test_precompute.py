@@ -747,6 +747,10 @@ def test_sggx_ndf_matches_the_plugin_formula():
     ours = sggx_fibre_ndf(m, t, 0.27)
     theirs = np.array(sggx.ndf(mi.Vector3f(m.T), mi.Vector3f(t.T), 0.27))
     np.testing.assert_allclose(ours, theirs, rtol=2e-5)
+    # The in-place form the directional SAT's build uses is the same function of m.t.
+    from mscloth.precompute.tables import fibre_ndf_of_cosine
+    mt = np.sum(m * t, axis=1)
+    np.testing.assert_allclose(fibre_ndf_of_cosine(mt.copy(), 0.27), ours, rtol=1e-12)
 
 
 # ============================================================== cache

@@ -49,7 +49,7 @@ def test_fabric_xml_snippet_loads():
     cloth = scene.shapes()[0].bsdf()
     assert cloth.maps.meta["fabric"] == "silk-charmeuse"
     width_mm = cloth.maps.meta["tile_size_mm"][0]
-    assert abs(cloth.uv_scale[0] - 10.0 / width_mm) < 1e-3 * cloth.uv_scale[0]  # UVs in cm
+    assert abs(cloth.params.uv_scale[0] - 10.0 / width_mm) < 1e-3 * cloth.params.uv_scale[0]  # UVs in cm
 
 
 def test_parameter_tables_flag_what_traverse_exposes():

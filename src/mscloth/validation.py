@@ -7,6 +7,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .bsdf.lobes import enabled_lobes
+
 
 def _unit(v):
     v = np.asarray(v, dtype=float)
@@ -36,14 +38,14 @@ def footprint_expectation(bsdf, uv, half_texels, tile_texels, wi, wo, n=20000, s
     over uniformly placed control-variate residual texels, uniform SAT corner rounding and
     probe choice, with the footprint shaded whole (the footprint branch, whatever its size)."""
     si = footprint_interaction(n, uv, half_texels, tile_texels, wi)
-    enabled = bsdf.enabled(non_delta_context())
-    fr = bsdf.frame(si, True)
+    enabled = enabled_lobes(non_delta_context())
+    fr = bsdf.fibre.frame(si, True)
     rng = np.random.default_rng(seed)
     xi = mi.Point2f(rng.random(n), rng.random(n))
     xi_round = mi.Point2f(rng.random(n), rng.random(n))
     u_probe = mi.Float(rng.random(n))
     st = bsdf.estimator.state(si, fr, enabled, xi, xi_round, u_probe)
-    value = bsdf.estimator.eval(fr, st, bsdf.mirror(fr, mi.Vector3f(_unit(wo))), enabled)
+    value = bsdf.estimator.eval(fr, st, fr.mirror(mi.Vector3f(_unit(wo))), enabled)
     v = np.array(value)[0]
     return float(v.mean()), float(v.std() / np.sqrt(n)), bool(np.array(st.fp.use)[0])
 

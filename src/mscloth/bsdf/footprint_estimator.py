@@ -1,29 +1,29 @@
 """The footprint (multi-scale) estimator of the ``cloth`` BSDF: the pixel footprint's probe
 box, the SAT means over it with the control-variate residual texels (Eq. 9-14 with CCV),
-and the mixture that samples it (issue 20, item 6: out of :mod:`.cloth`, so that tests and
-:mod:`mscloth.validation` call it through public methods).
+and the mixture that samples it; tests and :mod:`mscloth.validation` call it through its
+public methods.
 
 The estimator is one class for every Mitsuba variant: it reads ``mi`` and ``dr`` of the
-variant active when it is called, as :mod:`.cloth`'s helpers do, and asks its BSDF for the
-fibre-level pieces (texels, lobe weights, sheen, visibility, lobe pdfs, point sampling)
-and its data (tables, calibrations, parameters), at call time: calibration replaces
-``footprint_calibration`` while the BSDF is built.
-
-Texel and frame state (``fr``, the texels of :meth:`ClothBSDF.texel`) stay dicts.
+variant active when it is called, and builds on a :class:`.fibre_bsdf.FibreBSDF` for the
+fibre-level pieces (texels, sheen, visibility, the lobe mixture) and its data (tables,
+live parameters), read at call time. Its own lobe ``calibration`` is set by the plugin
+(:func:`.lobe_calibration.calibrate`, which measures the footprint mixture with it).
 """
 from __future__ import annotations
 
-import weakref
+import dataclasses
 from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
 
 from ..scattering import sggx, spongecake
+from .fibre_bsdf import FibreBSDF, edges_in_texels
 from .lanes import logical_not, pick
-from .lobes import (DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN,
-                    SPECULAR_REFLECTION, SPECULAR_TRANSMISSION, with_yarn_albedo)
+from .lobe_mixture import lobe_weights
+from .lobes import DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN, SPECULAR_REFLECTION, SPECULAR_TRANSMISSION
 from .sat_queries import RectQuery, hemisphere_bins, round_box
+from .shading_state import Texel, ViewFrame
 
 
 @dataclass
@@ -53,8 +53,8 @@ class FootprintState:
     #: The footprint's mean t t^T over its yarn (xx, xy, xz, yy, yz, zz; mirrored frame);
     #: None when no specular lobe is enabled.
     moments: tuple | None = None
-    #: The control-variate residual texels (texel dicts, see ``ClothBSDF.texel``).
-    texels: list | None = None
+    #: The control-variate residual texels (:class:`.shading_state.Texel`).
+    texels: list[Texel] | None = None
     #: Every cluster's mean viewer-side visibility, and the footprint's share of each
     #: cluster's yarn; None without visibility.
     cvis_i: list | None = None
@@ -93,20 +93,13 @@ def shading_hash(si):
     return mi.Point2f(unit(v0), unit(v1)), mi.Point2f(unit(v2), unit(v3)), unit24(low)
 
 
-def edges_in_texels(bsdf, si):
-    """The pixel footprint's edges si.duv_dx, si.duv_dy in texels of ``bsdf``'s tile
-    (also for BSDFs without an estimator: ``footprint_texels``)."""
-    su, sv = bsdf.uv_scale * bsdf.tile_w, bsdf.uv_scale_v * bsdf.tile_h
-    return (si.duv_dx.x * su, si.duv_dx.y * sv), (si.duv_dy.x * su, si.duv_dy.y * sv)
-
-
-def _table_tangent(fr, tangent):
+def _table_tangent(fr: ViewFrame, tangent):
     """A texel's tangent (mirrored frame) back in the maps' frame of the tables."""
-    return mi.Vector3f(tangent.x, tangent.y, fr["sign"] * tangent.z)
+    return mi.Vector3f(tangent.x, tangent.y, fr.sign * tangent.z)
 
 
 class FootprintEstimator:
-    """The footprint BSDF of a multi-scale ``cloth`` BSDF (``bsdf.estimator``).
+    """The footprint BSDF of a multi-scale ``cloth`` BSDF, over its fibre-level BSDF.
 
     The tuning constants below are class attributes, so that experiments
     (``bench/common.py``'s ``--attr NAME=VALUE``) change them for every cloth BSDF."""
@@ -143,16 +136,11 @@ class FootprintEstimator:
     #: grid over the shaded box.
     RESIDUAL_GRID = 2
 
-    def __init__(self, bsdf):
-        # A weak reference: the BSDF holds its estimator, and a strong one both ways would
-        # keep a deleted BSDF (and its tables, up to hundreds of MiB) alive until Python's
-        # garbage collector runs.
-        self._bsdf = weakref.ref(bsdf)
-
-    @property
-    def bsdf(self):
-        """The ``cloth`` BSDF this estimator shades for."""
-        return self._bsdf()
+    def __init__(self, fibre: FibreBSDF):
+        self.fibre = fibre
+        #: :class:`.lobe_calibration.LobeCalibration` of the footprint mixture's lobe
+        #: choice (None: the raw proxies).
+        self.calibration = None
 
     def shading_hash(self, si):
         """:func:`shading_hash`: the estimator's random numbers (xi, xi_round, u) of the
@@ -165,9 +153,10 @@ class FootprintEstimator:
     # ------------------------------------------------------------------
     def edges_texels(self, si):
         """The pixel footprint's edges si.duv_dx, si.duv_dy in texels of this tile."""
-        return edges_in_texels(self.bsdf, si)
+        p = self.fibre.params
+        return edges_in_texels(p.uv_scale, p.uv_scale_v, self.fibre.tile, si)
 
-    def footprint(self, si, fr, u, u_probe=None) -> Footprint:
+    def footprint(self, si, fr: ViewFrame, u, u_probe=None) -> Footprint:
         """The pixel footprint's probe (a texel box), and whether to shade it as one.
 
         Convention (docs/decisions.md): the footprint is the parallelogram spanned by
@@ -205,7 +194,7 @@ class FootprintEstimator:
         if u_probe is None:
             u_probe = dr.minimum(u * dr.select(p_use > 0.0, dr.rcp(p_use), 0.0), 0.99999994)
             u_probe_a = u_probe_b = u_probe
-            offset = fr.get("pixel_offset")
+            offset = fr.pixel_offset
             if offset is not None:
                 # The slice the sample lies in: with a stratified sampler (multijitter
                 # stratifies each pixel axis), a pixel's samples spread evenly over
@@ -244,8 +233,8 @@ class FootprintEstimator:
         m = dr.select(dr.safe_sqrt(sx * sx + sy * sy) >= 2.0, float(self.CELLS), 1.0)
         offset = (dr.floor(u_probe * n) + 0.5) * dr.rcp(n) - 0.5
         offset_s = (dr.floor(v_probe * m) + 0.5) * dr.rcp(m) - 0.5
-        cx = fr["x"] + dr.select(finite, offset * lx + offset_s * sx, 0.0)
-        cy = fr["y"] + dr.select(finite, offset * ly + offset_s * sy, 0.0)
+        cx = fr.x + dr.select(finite, offset * lx + offset_s * sx, 0.0)
+        cy = fr.y + dr.select(finite, offset * ly + offset_s * sy, 0.0)
         sx, sy = sx * dr.rcp(m), sy * dr.rcp(m)
         # The probe: the box of the slice's own area and centre, its sides in the ratio
         # of the slice's extents (square roots of its covariance's diagonal). Where the
@@ -269,23 +258,23 @@ class FootprintEstimator:
         edges = tuple(dr.select(finite, e, 0.0) for e in (ax, ay, bx, by))
         return Footprint(use=use, box=(cx - rx, cy - ry, cx + rx, cy + ry), edges=edges)
 
-    def point_in_footprint(self, fr, fp: Footprint, xi):
+    def point_in_footprint(self, fr: ViewFrame, fp: Footprint, xi):
         """Texel coordinates of the point ``xi`` (uniform in [0,1)^2) of the footprint's
         parallelogram, where the fibre-level branch shades."""
         ax, ay, bx, by = fp.edges
-        return (fr["x"] + (xi.x - 0.5) * ax + (xi.y - 0.5) * bx,
-                fr["y"] + (xi.x - 0.5) * ay + (xi.y - 0.5) * by)
+        return (fr.x + (xi.x - 0.5) * ax + (xi.y - 0.5) * bx,
+                fr.y + (xi.x - 0.5) * ay + (xi.y - 0.5) * by)
 
     def rounded_box(self, fp: Footprint, xi_round):
         """The footprint's probe with its corners rounded stochastically to whole texels
         by ``xi_round`` (the box that is shaded), and its SAT query."""
         box = round_box(*fp.box, xi_round.x, xi_round.y)
-        return box, self.bsdf.footprint_data.scalar_sats.query_on_grid(*box)
+        return box, self.fibre.footprint_data.scalar_sats.query_on_grid(*box)
 
     # ------------------------------------------------------------------
     # The footprint's state: SAT means, residual texels, sampling mixture
     # ------------------------------------------------------------------
-    def state(self, si, fr, enabled, xi=None, xi_round=None, u_probe=None, fp: Footprint | None = None
+    def state(self, si, fr: ViewFrame, enabled, xi=None, xi_round=None, u_probe=None, fp: Footprint | None = None
               ) -> FootprintState:
         """Everything of the footprint that does not depend on the outgoing direction,
         computed once per shading point and shared by eval, pdf and sample: the SAT
@@ -297,9 +286,10 @@ class FootprintEstimator:
         by default all three are a hash of (si.uv, si.p), so eval is a deterministic
         function of (si, wo). ``fp``: the footprint :meth:`footprint` gave for these
         numbers, if the caller has it already."""
-        bsdf = self.bsdf
-        fd = bsdf.footprint_data
+        fibre = self.fibre
+        fd = fibre.footprint_data
         sats = fd.scalar_sats
+        uniform_albedo = fibre.tile.uniform_yarn_albedo
         if xi is None or fp is None:
             hashed = self.shading_hash(si)
             if xi is None:
@@ -321,7 +311,7 @@ class FootprintEstimator:
         # Every channel at once (gap, moments, cluster histogram, albedo): packets of four
         # neighbouring channels per corner read. Uniformly coloured yarns stop before the
         # albedo channels (4 packets instead of 5 with 8 clusters).
-        needed = sats.channels if bsdf.uniform_yarn_albedo is None else -(-fd.ALBEDO // 4) * 4
+        needed = sats.channels if uniform_albedo is None else -(-fd.ALBEDO // 4) * 4
         means = [value * inv_area for value in sats.integrals(q, 0, needed)]
 
         def mean(channel):
@@ -330,40 +320,39 @@ class FootprintEstimator:
         st = FootprintState(fp=fp, q=q, inv_area=inv_area)
         st.yarn_mean = yarn_mean = mean(fd.GAP)
         inv_yarn = dr.select(yarn_mean > 1e-6, dr.rcp(yarn_mean), 0.0)
-        if bsdf.uniform_yarn_albedo is not None:
-            st.yarn_albedo = mi.Color3f(*bsdf.uniform_yarn_albedo)
+        if uniform_albedo is not None:
+            st.yarn_albedo = mi.Color3f(*uniform_albedo)
         else:
             st.yarn_albedo = mi.Color3f(*[mean(fd.ALBEDO + c) * inv_yarn for c in range(3)])
         if enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]:
             # The footprint's mean SGGX matrix over its yarn texels:
             # S = I - (1 - alpha^2) <t t^T>, from the mean of t t^T.
             m = [mean(fd.MOMENTS + j) * inv_yarn for j in range(6)]
-            sgn = fr["sign"]
+            sgn = fr.sign
             st.moments = (m[0], m[1], sgn * m[2], m[3], sgn * m[4], m[5])
 
         # The texels of the control-variate residual, one uniform in each cell of a grid
         # over the footprint (stratified: 1/n of the variance of one texel or less).
         st.texels = texels = self._stratified_texels(fr, box, xi)
-        if bsdf.use_visibility:
-            st.cvis_i = cvis_i = fd.cluster_visibilities(fr["wi"], fr["flip"])
+        if fibre.use_visibility:
+            st.cvis_i = cvis_i = fd.cluster_visibilities(fr.wi, fr.flip)
             for t_ in texels:
-                t_["cluster"] = fd.cluster_of(t_["ix"], t_["iy"])
-                t_["vis"] = fd.texel_visibility(t_["ix"], t_["iy"])
-                t_["v_i"] = fd.visibility_of(t_["vis"], fr["wi"], fr["flip"])
-                t_["cvis_i"] = pick(cvis_i, t_["cluster"])
+                t_.cluster = fd.cluster_of(t_.ix, t_.iy)
+                t_.vis = fd.texel_visibility(t_.ix, t_.iy)
+                t_.v_i = fd.visibility_of(t_.vis, fr.wi, fr.flip)
+                t_.cvis_i = pick(cvis_i, t_.cluster)
             # The footprint's share of each cluster's yarn (diffuse lobes, specular base).
             st.fractions = [mean(fd.CLUSTERS + c) for c in range(fd.clusters)]
 
         # The sampling mixture: lobes chosen by the footprint's own averages (yarn
         # coverage, yarn colour, mean SGGX matrix), the specular lobe from the tangent
         # of one of the residual texels, and a defensive cosine component.
-        k = with_yarn_albedo(fr["k"], st.yarn_albedo)
+        k = fr.k.with_yarn_albedo(st.yarn_albedo)
         scattered = mi.Float(0.0)
         if st.moments is not None:
-            sigma_i = self._mean_sigma(st, fr["wi"])
-            scattered = 1.0 - spongecake.unscattered_transmittance_from(sigma_i, fr["wi"], bsdf.thickness)
-        st.probs = bsdf.lobe_weights(k, fr["wi"], yarn_mean, fr["t_sheen_i"], scattered, enabled,
-                                     bsdf.footprint_calibration)
+            sigma_i = sggx.mean_sigma(st.moments, fr.wi, fibre.params.roughness)
+            scattered = 1.0 - spongecake.unscattered_transmittance_from(sigma_i, fr.wi, fibre.params.thickness)
+        st.probs = lobe_weights(k, fr.wi, yarn_mean, fr.t_sheen_i, scattered, enabled, self.calibration)
         # Scaled by the square root of the yarn lobes' share: it guards them (the residual
         # texels' tangents may miss some of the footprint's), and the sheen, sampled from
         # its own table, needs no guard. A fixed share spent a tenth of the samples at
@@ -381,15 +370,6 @@ class FootprintEstimator:
         st.eps_lower = eps_c * dr.clip(lower, self.DEFENSIVE_MIN_SIDE, 1.0 - self.DEFENSIVE_MIN_SIDE)
         return st
 
-    def _mean_sigma(self, st: FootprintState, w):
-        """sigma(w) of the footprint's mean SGGX matrix S = I - (1 - alpha^2) <t t^T>."""
-        m_xx, m_xy, m_xz, m_yy, m_yz, m_zz = st.moments
-        roughness = self.bsdf.roughness
-        alpha2 = roughness * roughness
-        q = (w.x * w.x * m_xx + w.y * w.y * m_yy + w.z * w.z * m_zz
-             + 2.0 * (w.x * w.y * m_xy + w.x * w.z * m_xz + w.y * w.z * m_yz))
-        return dr.safe_sqrt(dr.maximum(1.0 - (1.0 - alpha2) * q, alpha2))
-
     @staticmethod
     def _strata(g):
         """(cell x, cell y, offset x, offset y) of each residual texel: the offsets of
@@ -400,10 +380,10 @@ class FootprintEstimator:
         n = g * g
         return tuple((float(k % g), float(k // g), ((k * 7) % n) / n, ((k * 5) % n + 0.5) / n) for k in range(n))
 
-    def _stratified_texels(self, fr, box, xi):
+    def _stratified_texels(self, fr: ViewFrame, box, xi) -> list[Texel]:
         """The residual texels, one uniform in each cell of the rounded box the SAT
         means cover (from ``xi``)."""
-        bsdf = self.bsdf
+        fibre = self.fibre
         x0, y0, x1, y1 = box
         g = self.RESIDUAL_GRID
         texels = []
@@ -412,31 +392,32 @@ class FootprintEstimator:
             sy = xi.y + cy
             u = (qx + sx - dr.floor(sx)) * (1.0 / g)  # in [0, 1)
             v = (qy + sy - dr.floor(sy)) * (1.0 / g)
-            texels.append(bsdf.texel(fr, x0 + u * (x1 - x0), y0 + v * (y1 - y0)))
+            texels.append(fibre.texel(fr, x0 + u * (x1 - x0), y0 + v * (y1 - y0)))
         return texels
 
     # ------------------------------------------------------------------
     # The footprint BSDF: eval, pdf, sample (mirrored frame)
     # ------------------------------------------------------------------
-    def eval(self, fr, st: FootprintState, wo, enabled):
+    def eval(self, fr: ViewFrame, st: FootprintState, wo, enabled):
         """Footprint-averaged non-delta f*|cos o| (Eq. 9-14 with CCV), mirrored frame."""
-        bsdf = self.bsdf
-        fd = bsdf.footprint_data
-        wi = fr["wi"]
-        k = fr["k"]
+        fibre = self.fibre
+        fd = fibre.footprint_data
+        roughness, thickness = fibre.params.roughness, fibre.params.thickness
+        wi = fr.wi
+        k = fr.k
         texels = st.texels
         cos_o = wo.z
         up = cos_o > 0.0
         valid = (wi.z > spongecake.COS_EPSILON) & (dr.abs(cos_o) > spongecake.COS_EPSILON)
         yarn_albedo = st.yarn_albedo
 
-        if bsdf.use_visibility:
+        if fibre.use_visibility:
             # Per residual texel: V(p, i, o) and its cluster's mean v_c(i) v_c(o).
-            cvis_o = bsdf.cluster_visibilities_o(fr, wo)
-            v_p = [t_["v_i"] * bsdf.visibility_o(t_, wo) for t_ in texels]
-            vbar_p = [t_["cvis_i"] * pick(cvis_o, t_["cluster"]) for t_ in texels]
+            cvis_o = fibre.cluster_visibilities_o(fr, wo)
+            v_p = [t_.v_i * fibre.visibility_o(t_, wo) for t_ in texels]
+            vbar_p = [t_.cvis_i * pick(cvis_o, t_.cluster) for t_ in texels]
 
-        value, under_fuzz = bsdf.sheen_and_fuzz(fr, wo, enabled)
+        value, under_fuzz = fibre.sheen_and_fuzz(fr, wo, enabled)
         reflection = mi.Color3f(0.0)
         transmission = mi.Color3f(0.0)
         if enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]:
@@ -444,7 +425,7 @@ class FootprintEstimator:
             h = dr.select(h.z < 0.0, -h, h)  # D is even
             # The tables hold D of the maps' own tangents; the mirrored frame flips their
             # z, so a viewer below looks up the mirror image of h (then folded up again).
-            h_table = mi.Vector3f(h.x, h.y, fr["sign"] * h.z)
+            h_table = mi.Vector3f(h.x, h.y, fr.sign * h.z)
             h_table = dr.select(h_table.z < 0.0, -h_table, h_table)
             # The four bins around h with their bilinear weights, deterministically: a
             # random pick of one (a quarter of the reads) was most of the estimator's own
@@ -456,17 +437,17 @@ class FootprintEstimator:
             # towards mean(D g), which differ where D and the tangent correlate (grazing
             # highlights: 10-17% low without it).
             def g_of(sigma_i, sigma_o):
-                return spongecake.eval_specular_from(1.0, sigma_i, sigma_o, wi, wo, bsdf.thickness)[0]
+                return spongecake.eval_specular_from(1.0, sigma_i, sigma_o, wi, wo, thickness)[0]
 
-            g_bar = g_of(self._mean_sigma(st, wi), self._mean_sigma(st, wo))
-            d_k = [sggx.ndf(h, t_["tangent"], bsdf.roughness) * t_["yarn"] for t_ in texels]
+            g_bar = g_of(sggx.mean_sigma(st.moments, wi, roughness), sggx.mean_sigma(st.moments, wo, roughness))
+            d_k = [sggx.ndf(h, t_.tangent, roughness) * t_.yarn for t_ in texels]
             # The same texels' D as the tables bin it (tangents in the tables' frame): the
             # control variate that removes the bins' bias from the base.
-            dbin_k = [fd.binned_ndf(*bins_h, _table_tangent(fr, t_["tangent"]), bsdf.roughness) * t_["yarn"]
+            dbin_k = [fd.binned_ndf(*bins_h, _table_tangent(fr, t_.tangent), roughness) * t_.yarn
                       for t_ in texels]
-            g_k = [g_of(sggx.projected_area(wi, t_["tangent"], bsdf.roughness),
-                        sggx.projected_area(wo, t_["tangent"], bsdf.roughness)) for t_ in texels]
-            if bsdf.use_visibility:
+            g_k = [g_of(sggx.projected_area(wi, t_.tangent, roughness),
+                        sggx.projected_area(wo, t_.tangent, roughness)) for t_ in texels]
+            if fibre.use_visibility:
                 # Alg. 4's visibility: the mean v_c of the residual texels' clusters.
                 texel_mean = sum(vbar_p) * (1.0 / len(vbar_p))
                 vbar_spec = vbar_p
@@ -497,7 +478,7 @@ class FootprintEstimator:
                         # less (a 384^2 footprint's variance ratio 0.06 against 0.41)
                         # (bench/footprint_bias_scan.py, docs/decisions.md).
                         x0, y0, x1, y1 = st.fp.box
-                        whole_tiles = (x1 - x0 >= bsdf.tile_w) & (y1 - y0 >= bsdf.tile_h)
+                        whole_tiles = (x1 - x0 >= fibre.tile.tile_w) & (y1 - y0 >= fibre.tile.tile_h)
                         vbar_spec = [dr.select(whole_tiles, vb, w_bar) for vb in vbar_p]
                 else:
                     base = d_yarn * texel_mean
@@ -514,37 +495,38 @@ class FootprintEstimator:
                     residual += d * g - db * g_bar
                 spec = d_yarn * g_bar + residual * (1.0 / len(texels))
             if enabled[SPECULAR_REFLECTION]:
-                reflection += k["specular_albedo"] * yarn_albedo * spec
+                reflection += k.specular_albedo * yarn_albedo * spec
             if enabled[SPECULAR_TRANSMISSION]:
-                transmission += k["specular_transmittance"] * yarn_albedo * spec
+                transmission += k.specular_transmittance * yarn_albedo * spec
         if enabled[DIFFUSE_REFLECTION] or enabled[DIFFUSE_TRANSMISSION]:
-            if bsdf.use_visibility:
+            if fibre.use_visibility:
                 # Eq. 14 through the cluster histogram, plus the same residual texel.
                 yarn_visible = mi.Float(0.0)
                 for t_, v, vbar in zip(texels, v_p, vbar_p):
-                    yarn_visible += t_["yarn"] * (v - vbar) * (1.0 / len(texels))
+                    yarn_visible += t_.yarn * (v - vbar) * (1.0 / len(texels))
                 for c in range(fd.clusters):
                     yarn_visible += st.cvis_i[c] * cvis_o[c] * st.fractions[c]
             else:
                 yarn_visible = st.yarn_mean
             cosine = dr.abs(cos_o) * dr.inv_pi * yarn_visible
             if enabled[DIFFUSE_REFLECTION]:
-                reflection += k["diffuse_albedo"] * yarn_albedo * cosine
+                reflection += k.diffuse_albedo * yarn_albedo * cosine
             if enabled[DIFFUSE_TRANSMISSION]:
-                transmission += k["diffuse_transmittance"] * yarn_albedo * cosine
+                transmission += k.diffuse_transmittance * yarn_albedo * cosine
         value += under_fuzz * dr.select(up, reflection, transmission)
         return dr.select(valid, value, 0.0)
 
-    def pdf(self, fr, st: FootprintState, wo, enabled):
+    def pdf(self, fr: ViewFrame, st: FootprintState, wo, enabled):
         """Density of the footprint mixture's non-delta directions (mirrored frame)."""
-        wi = fr["wi"]
+        wi = fr.wi
         valid = (wi.z > spongecake.COS_EPSILON) & (dr.abs(wo.z) > spongecake.COS_EPSILON)
-        pdf = self.bsdf.lobes_pdf(wi, wo, st.probs, [t_["tangent"] for t_ in st.texels], enabled)
+        fibre = self.fibre
+        pdf = fibre.samplers.pdf(fibre.params.roughness, wi, wo, st.probs, [t_.tangent for t_ in st.texels], enabled)
         eps_c, eps_lower = st.eps_c, st.eps_lower
         eps_side = dr.select(wo.z > 0.0, eps_c - eps_lower, eps_lower)
         return dr.select(valid, (1.0 - eps_c) * pdf + eps_side * dr.abs(wo.z) * dr.inv_pi, 0.0)
 
-    def sample(self, fr, st: FootprintState, enabled, sample1, sample2, active):
+    def sample(self, fr: ViewFrame, st: FootprintState, enabled, sample1, sample2, active):
         """A direction from the footprint mixture:
         (wo mirrored, ok, component, gap_ok, gap_pdf, gap_value)."""
         texels, fp_probs, eps_c = st.texels, st.probs, st.eps_c
@@ -555,21 +537,22 @@ class FootprintEstimator:
         u_spec = (u - fp_probs[SHEEN]) / dr.select(fp_probs[SPECULAR_REFLECTION] > 0.0,
                                                    fp_probs[SPECULAR_REFLECTION], 1.0)
         quad = mi.UInt32(dr.clip(dr.floor(u_spec * len(texels)), 0, len(texels) - 1))
-        chosen = dict(texels[0])
+        tangent = texels[0].tangent
         for q in range(1, len(texels)):
-            chosen["tangent"] = dr.select(quad == q, texels[q]["tangent"], chosen["tangent"])
+            tangent = dr.select(quad == q, texels[q].tangent, tangent)
+        chosen = dataclasses.replace(texels[0], tangent=tangent)
 
-        wo, ok, component, gap_ok = self.bsdf.sample_point(chosen, fp_probs, enabled, u, sample2, active)
+        wo, ok, component, gap_ok = self.fibre.sample(chosen, fp_probs, enabled, u, sample2, active)
         wo_cos = mi.warp.square_to_cosine_hemisphere(sample2)
         # The defensive cosine side: the lower or upper part of its sample1 slice.
         lower = sample1 < st.eps_lower
         wo_cos.z = dr.select(lower, -wo_cos.z, wo_cos.z)
         wo = dr.select(pick_def_cos, wo_cos, wo)
-        viewer_ok = active & (fr["wi"].z > spongecake.COS_EPSILON)
+        viewer_ok = active & (fr.wi.z > spongecake.COS_EPSILON)
         ok = dr.select(pick_def_cos, viewer_ok, ok)
         component = dr.select(pick_def_cos, dr.select(lower, DIFFUSE_TRANSMISSION, DIFFUSE_REFLECTION),
                               component)
         gap_ok &= logical_not(pick_def_cos)
         gap_pdf = (1.0 - eps_c) * fp_probs[GAP]
-        gap_value = fr["t_sheen_i"] * fr["t_sheen_i"] * (1.0 - st.yarn_mean)
+        gap_value = self.fibre.gap_value(fr, st.yarn_mean)
         return wo, ok, component, gap_ok, gap_pdf, gap_value

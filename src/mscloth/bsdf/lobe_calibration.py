@@ -82,26 +82,26 @@ SHARE_FOOTPRINT_TEXELS = 64.0
 SHARE_PASSES = 12
 
 
-def calibrate(bsdf, proxies_at, texel_uv=None, nodes: int = 16, lanes: int = 1024, seed: int = 0):
+def calibrate(bsdf, proxies_at, estimator=None, texel_uv=None, nodes: int = 16, lanes: int = 1024, seed: int = 0):
     """(fibre-level calibration, footprint calibration or None): the albedo ratios
-    (:func:`measure_ratios`), and for a multi-scale BSDF (``texel_uv``: the (u, v) size of
-    one texel) the same times the share factors of the footprint mixture measured with
-    them in place (:func:`measure_share_factors`).
-    Leaves ``bsdf.lobe_calibration`` and ``bsdf.footprint_calibration`` as it found them."""
+    (:func:`measure_ratios`), and for a multi-scale BSDF (its footprint ``estimator``,
+    ``texel_uv``: the (u, v) size of one texel) the same times the share factors of the
+    footprint mixture measured with them in place (:func:`measure_share_factors`).
+    Leaves ``estimator.calibration`` as it found it."""
     point = LobeCalibration(measure_ratios(bsdf, proxies_at, nodes, lanes, seed))
-    if texel_uv is None:
+    if texel_uv is None or estimator is None:
         return point, None
-    before = bsdf.footprint_calibration
+    before = estimator.calibration
     footprint_uv = (SHARE_FOOTPRINT_TEXELS * texel_uv[0], SHARE_FOOTPRINT_TEXELS * texel_uv[1])
     calibration = LobeCalibration(point.albedo_ratios)
     try:
         for k in range(SHARE_PASSES):
-            bsdf.footprint_calibration = calibration
+            estimator.calibration = calibration
             factors = calibration.factors * measure_share_factors(bsdf, footprint_uv, nodes, 4 * lanes, seed + 1 + k)
             calibration = LobeCalibration(point.albedo_ratios,
                                           np.clip(factors, 1.0 / MAX_SHARE_FACTOR, MAX_SHARE_FACTOR))
     finally:
-        bsdf.footprint_calibration = before
+        estimator.calibration = before
     return point, calibration
 
 

@@ -7,9 +7,25 @@ LOBE_NAMES = ("sheen", "specular_reflection", "diffuse_reflection",
               "specular_transmission", "diffuse_transmission", "gap")
 
 
-def with_yarn_albedo(k, yarn_albedo):
-    """The lobe albedos with the yarn colour applied (every yarn lobe; not sheen)."""
-    k = dict(k)
-    for name in ("specular_albedo", "specular_transmittance", "diffuse_albedo", "diffuse_transmittance"):
-        k[name] = k[name] * yarn_albedo
-    return k
+def lobe_types() -> tuple:
+    """Mitsuba's type flag of each lobe, in component order."""
+    import mitsuba as mi
+    f = mi.BSDFFlags
+    return (f.GlossyReflection, f.GlossyReflection, f.DiffuseReflection,
+            f.GlossyTransmission, f.DiffuseTransmission, f.DeltaTransmission)
+
+
+def component_flags() -> list:
+    """Each component's flags (``m_components``): its type, both sides (the cloth is thin
+    and two-sided), and spatially varying for all but the sheen, which the maps leave
+    alone."""
+    import mitsuba as mi
+    both_sides = mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
+    varying = mi.BSDFFlags.SpatiallyVarying
+    return [t | both_sides if c == SHEEN else t | both_sides | varying for c, t in enumerate(lobe_types())]
+
+
+def enabled_lobes(ctx) -> list:
+    """Whether each of the six lobes is enabled by ``ctx`` (its type mask, component)."""
+    types = lobe_types()
+    return [ctx.is_enabled(types[c], c) for c in range(6)]

@@ -51,6 +51,7 @@ from ..atomic import atomic_write
 from ..cache import default_cache_dir, mark_used
 from ..errors import ParameterError
 from ._util import Progress, map_ordered, texel_pitch
+from ..scattering.fibre_ndf import fibre_ndf_of_cosines
 from .direction_bins import bilinear_bins, bin_centres, fold_upper, hemisphere_to_square
 from .parallax import parallax_table
 from .summed_area import _residual_cumsum, build_sat, rect_mean, rect_sum
@@ -70,12 +71,15 @@ def sggx_fibre_ndf(m: np.ndarray, t: np.ndarray, alpha: float) -> np.ndarray:
 
     The fibre-like SGGX of :mod:`mscloth.scattering.sggx` (S = alpha^2 t t^T + I - t t^T).
     """
-    mt = np.sum(np.asarray(m, dtype=np.float64) * np.asarray(t, dtype=np.float64), axis=-1)
-    return fibre_ndf_of_cosine(mt, alpha)
+    m = np.asarray(m, dtype=np.float64)
+    mt = np.sum(m * np.asarray(t, dtype=np.float64), axis=-1)
+    return fibre_ndf_of_cosines(mt * mt, np.sum(m * m, axis=-1), alpha)
 
 
 def fibre_ndf_of_cosine(mt: np.ndarray, alpha: float, out: np.ndarray | None = None) -> np.ndarray:
-    """:func:`sggx_fibre_ndf` as a function of the cosine m.t (any shape, float64).
+    """:func:`sggx_fibre_ndf` as a function of the cosine m.t (any shape, float64), in
+    place: :func:`mscloth.scattering.fibre_ndf.fibre_ndf_of_cosines` rearranged for unit m
+    (a test holds them equal).
 
     ``out``: a float64 array to compute in, ``mt`` itself allowed. The directional SAT's
     chunks are tens of MiB, and a temporary per step would be a pass over memory each."""

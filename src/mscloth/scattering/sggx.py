@@ -15,6 +15,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from .fibre_ndf import fibre_ndf_of_cosines, mean_matrix_sigma
+
 
 def quadratic_form(a, b, t, alpha):
     """a^T S b without forming S: a.b - (1 - alpha^2)(a.t)(b.t)."""
@@ -34,9 +36,13 @@ def ndf(m, t, alpha):
     integral max(0, w.m) D(m) dm = sigma(w).
     """
     mt = dr.dot(m, t)
-    mt2 = mt * mt
-    q = mt2 + alpha * alpha * (dr.squared_norm(m) - mt2)
-    return alpha * alpha * alpha / (dr.pi * q * q)
+    return fibre_ndf_of_cosines(mt * mt, dr.squared_norm(m), alpha)
+
+
+def mean_sigma(moments, w, alpha):
+    """sigma(w) of a footprint's mean SGGX matrix S = I - (1 - alpha^2) <t t^T>, from the
+    mean moments <t t^T> of its fibres (:func:`.fibre_ndf.mean_matrix_sigma`)."""
+    return mean_matrix_sigma(moments, w, alpha, dr.safe_sqrt, dr.maximum)
 
 
 def sample_visible_normal(wi, t, alpha, sample):

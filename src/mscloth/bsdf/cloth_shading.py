@@ -1,0 +1,206 @@
+"""One shading call of the ``cloth`` BSDF: the choice between the footprint estimator
+(multi-scale) and the fibre-level BSDF at a point of the footprint, and what Mitsuba's
+interface returns (values, densities, a sample record), for every variant.
+
+The plugin (:mod:`.cloth`) forwards each ``mi.BSDF`` method here; ``clothpath`` reaches
+:meth:`ClothShading.shade` through ``eval_pdf_sample_n``, several directions per call.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import drjit as dr
+import mitsuba as mi
+
+from ..scattering import spongecake
+from .fibre_bsdf import FibreBSDF, edges_in_texels
+from .footprint_estimator import FootprintEstimator
+from .lobes import GAP, SHEEN, lobe_types
+from .shading_state import ViewFrame
+
+
+@dataclass
+class SampleRecord:
+    """A sampled direction (world's local frame) with its density, component and weight."""
+
+    wo: Any
+    pdf: Any
+    component: Any
+    weight: Any
+
+
+def branch(cond, lanes_of, true_fn, false_fn, label):
+    """``dr.if_stmt`` on the per-lane ``cond``: a packet whose lanes all take one side skips
+    the other's work. In JIT variants ``cond`` is widened to the lanes of ``lanes_of`` first:
+    a footprint from constant si.duv_dx/dy (tests, calibration) and the evaluated parameters
+    is a single value, and Dr.Jit 1.5.0's if_stmt on a one-value condition that is not a
+    literal returns one-value outputs from wider inputs (and then fails to run)."""
+    if dr.is_jit_v(mi.Float):
+        cond = cond & dr.full(mi.Bool, True, dr.width(lanes_of))
+    return dr.if_stmt(args=(), cond=cond, true_fn=true_fn, false_fn=false_fn, label=label)
+
+
+def _unzip(pairs):
+    """[(a, b), ...] -> ([a, ...], [b, ...])."""
+    return [p[0] for p in pairs], [p[1] for p in pairs]
+
+
+class ClothShading:
+    """The shading of a ``cloth`` BSDF: its fibre-level BSDF and, when multi-scale, the
+    footprint estimator over it."""
+
+    def __init__(self, fibre: FibreBSDF, estimator: FootprintEstimator | None):
+        self.fibre = fibre
+        self.estimator = estimator
+
+    def shade(self, enabled, si, wos, samples, active, pixel_offset=None):
+        """eval_pdf at the world-frame directions ``wos`` and, if ``samples`` =
+        (sample1, sample2) is given, one sample: ([values], [pdfs], (bs, weight) or ()).
+        ``pixel_offset``: the sample's offset from its pixel's centre, in pixels along
+        the footprint's edges si.duv_dx, si.duv_dy (each in [-1/2, 1/2); below: not
+        known), which picks its probe (:meth:`.FootprintEstimator.footprint`) and
+        fibre-level point.
+
+        Footprints of a texel or more take the multi-scale branch, smaller ones the
+        fibre-level one; a symbolic if, so a packet of lanes that all take one branch
+        skips the other's work."""
+        fr = self.fibre.frame(si, active, pixel_offset)
+        wos = [fr.mirror(wo) for wo in wos]
+        if self.estimator is None:
+            values, pdfs, record = self._point_branch(si, fr, enabled, wos, samples, active)
+        else:
+            # One hash and one footprint per shading point, for the branch choice and
+            # for the branch taken.
+            hashed = self.estimator.shading_hash(si)
+            fp = self.estimator.footprint(si, fr, hashed[2])
+            values, pdfs, record = branch(
+                fp.use, (si, wos, samples),
+                true_fn=lambda: self._footprint_branch(si, fr, enabled, wos, samples, active, fp, hashed),
+                false_fn=lambda: self._point_branch(si, fr, enabled, wos, samples, active, fp, hashed[0]),
+                label="cloth_footprint")
+        values = [dr.select(active, v, 0.0) for v in values]
+        pdfs = [dr.select(active, p, 0.0) for p in pdfs]
+        return values, pdfs, (self._bsdf_sample(SampleRecord(*record)) if record else ())
+
+    def _point_branch(self, si, fr: ViewFrame, enabled, wos, samples, active, fp=None, xi=None):
+        """(values, pdfs, sample record) of the fibre-level BSDF at the texel under
+        si.uv (or, for a small footprint ``fp``, under the point ``xi`` of it, uniform in
+        [0,1)^2: the shading hash's), for the mirrored directions ``wos`` and, if given,
+        one sample."""
+        fibre = self.fibre
+        x, y = fr.x, fr.y
+        if fp is not None:
+            offset = fr.pixel_offset
+            if offset is not None:
+                # The sample's own point of the pixel: brute force, exactly.
+                known = (offset.x >= -0.5) & (offset.y >= -0.5)
+                xi = dr.select(known, mi.Point2f(offset.x + 0.5, offset.y + 0.5), xi)
+            x, y = self.estimator.point_in_footprint(fr, fp, xi)
+        pt = fibre.read_visibility(fibre.texel(fr, x, y))
+        probs = fibre.lobe_probabilities(pt, enabled)
+
+        def eval_pdf(wo):
+            return fibre.eval_pdf(pt, wo, enabled, probs)
+
+        record = ()
+        if samples is not None:
+            wo, ok, component, gap_ok = fibre.sample(pt, probs, enabled, *samples, active)
+            record = self._sample_record(si, fr, eval_pdf, wo, ok, component, gap_ok, probs[GAP],
+                                         fibre.gap_value(fr, pt.yarn))
+        values, pdfs = _unzip([eval_pdf(wo) for wo in wos])
+        return values, pdfs, record
+
+    def _footprint_branch(self, si, fr: ViewFrame, enabled, wos, samples, active, fp, hashed):
+        """The same for the footprint BSDF (multi-scale shading) of footprint ``fp``,
+        with the shading hash ``hashed`` it came from."""
+        estimator = self.estimator
+        xi, xi_round, _ = hashed
+        st = estimator.state(si, fr, enabled, xi, xi_round, fp=fp)
+
+        def eval_pdf(wo):
+            return estimator.eval(fr, st, wo, enabled), estimator.pdf(fr, st, wo, enabled)
+
+        record = ()
+        if samples is not None:
+            record = self._sample_record(si, fr, eval_pdf, *estimator.sample(fr, st, enabled, *samples, active))
+        values, pdfs = _unzip([eval_pdf(wo) for wo in wos])
+        return values, pdfs, record
+
+    @staticmethod
+    def _sample_record(si, fr: ViewFrame, eval_pdf, wo, ok, component, gap_ok, gap_pdf, gap_value):
+        """(wo in the world's local frame, pdf, component, weight) of a sampled mirrored
+        direction, or of the gap: a tuple, the output of a symbolic if."""
+        value, pdf = eval_pdf(wo)
+        ok &= pdf > 0.0
+        weight = dr.select(ok, value / dr.select(ok, pdf, 1.0), 0.0)
+        gap_ok &= gap_pdf > 0.0
+        gap_weight = gap_value / dr.select(gap_ok, gap_pdf, 1.0)
+        return (dr.select(gap_ok, -si.wi, fr.mirror(wo)),
+                dr.select(gap_ok, gap_pdf, dr.select(ok, pdf, 0.0)),
+                dr.select(gap_ok, mi.UInt32(GAP), component),
+                dr.select(gap_ok, mi.Color3f(gap_weight), weight))
+
+    @staticmethod
+    def _bsdf_sample(record: SampleRecord):
+        """(BSDFSample3f, weight) of a sample record. Built after the branches: values
+        that are the same literal in both branches of a symbolic if (eta = 1) trip
+        Dr.Jit's LLVM code generation inside virtual calls."""
+        bs = dr.zeros(mi.BSDFSample3f)
+        bs.wo = record.wo
+        bs.pdf = record.pdf
+        bs.eta = 1.0
+        bs.sampled_component = record.component
+        type_of = [mi.UInt32(+f) for f in lobe_types()]
+        sampled_type = type_of[SHEEN]
+        for c in range(1, 6):
+            sampled_type = dr.select(record.component == c, type_of[c], sampled_type)
+        bs.sampled_type = sampled_type
+        return bs, record.weight
+
+    # ------------------------------------------------------------------
+    # What clothpath asks besides shading
+    # ------------------------------------------------------------------
+    def footprint_texels(self, si, active=True):
+        """Full widths (u, v) in texels of this tile of the footprint in si.duv_dx/dy."""
+        p = self.fibre.params
+        (ax, ay), (bx, by) = edges_in_texels(p.uv_scale, p.uv_scale_v, self.fibre.tile, si)
+        wu, wv = dr.abs(ax) + dr.abs(bx), dr.abs(ay) + dr.abs(by)
+        ok = active & dr.isfinite(wu) & dr.isfinite(wv)
+        return dr.select(ok, wu, 0.0), dr.select(ok, wv, 0.0)
+
+    def gap_transmission(self, si, active=True):
+        """Fraction of light crossing the cloth straight along -si.wi through its gaps:
+        T_sheen(i)^2 (1 - I), with I the yarn coverage of the footprint in
+        si.duv_dx/dy (multi-scale; below 8 texels, possibly of the texel at the point
+        fibre-level shading takes) or of the texel (used by clothpath's shadow rays).
+        The footprint's I is its mean over the stochastically rounded box, the one the
+        footprint BSDF shades: the crossing lets through what the BSDF's gap lobe
+        does at the same point."""
+        fibre = self.fibre
+        fr = fibre.frame(si, active)
+        estimator = self.estimator
+        if estimator is None:
+            yarn = fibre.texel(fr, fr.x, fr.y).yarn
+        else:
+            xi, xi_round, u = estimator.shading_hash(si)
+            fp = estimator.footprint(si, fr, u)
+            data = fibre.footprint_data
+
+            def texel_yarn():  # at the point the fibre-level branch shades
+                return fibre.texel(fr, *estimator.point_in_footprint(fr, fp, xi)).yarn
+
+            def footprint_yarn():
+                # One read per corner of the rounded box (exact corners took four, and
+                # were most of what a shadow ray crossing cloth cost). Its mean stays in
+                # [0, 1]: over the exact area it did not, and the clip below then let
+                # light through gap-free footprints (docs/decisions.md).
+                _, q = estimator.rounded_box(fp, xi_round)
+                return data.scalar_sats.integral(q, data.GAP) / q.area
+
+            # Packets whose lanes all have a footprint skip the texel read; packets
+            # without one (shadow rays from vertices shaded at a point) the table reads.
+            yarn = branch(fp.use & active, (si, active), true_fn=footprint_yarn, false_fn=texel_yarn,
+                          label="cloth_gap_footprint")
+        return dr.select(active & (dr.abs(si.wi.z) > spongecake.COS_EPSILON),
+                         fibre.gap_value(fr, dr.clip(yarn, 0.0, 1.0)), 0.0)
