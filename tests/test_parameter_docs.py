@@ -61,7 +61,8 @@ def test_generation_follows_the_table(monkeypatch):
     changed = (ParameterDoc("roughness", "float", "0.3", "A `changed` meaning."),) + PARAMETER_DOCS[1:]
     monkeypatch.setattr(parameter_docs, "PARAMETER_DOCS", changed)
     assert "| `roughness` | float | 0.3 | A `changed` meaning. |" in markdown_section()
-    assert "   * - roughness\n     - float\n     - 0.3\n     - A ``changed`` meaning." in parameter_docs.rst_list_table()
+    rst_row = "   * - roughness\n     - float\n     - 0.3\n     - A ``changed`` meaning."
+    assert rst_row in parameter_docs.rst_list_table()
     readme = (ROOT / "README.md").read_text()
     assert gen_docs.generated(readme) != readme
 

@@ -1,4 +1,4 @@
-"""All per-tile tables of the multi-scale BSDF (DESIGN §4), their build, and an on-disk cache.
+"""All per-tile tables of the multi-scale BSDF (docs/design.md §4), their build, and an on-disk cache.
 
 Coordinates of every SAT query are texel units: x = u*W along columns, y = v*H along rows;
 texel (r, c) covers [c, c+1) x [r, r+1); queries are periodic (see :mod:`.summed_area`).
