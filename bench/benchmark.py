@@ -349,7 +349,7 @@ def _summary_lines(compare_rows, budget_rows) -> list[str]:
         "sample v = relMSE x spp with the scene's sun and sky, both",
         "methods; time per sample t: milliseconds per spp of the whole frame (multi-scale at its",
         "spp, brute force at the same spp). With n = multi-scale's spp, the speed-up is about",
-        "[v_bf / (b^2 + v_ms / n)] / n x t_bf / t_ms (DESIGN 4.6); the noise-only speed-up is it",
+        "[v_bf / (b^2 + v_ms / n)] / n x t_bf / t_ms (docs/design.md §4.6); the noise-only speed-up is it",
         "without the bias. Error-budget figures (next section) for the scenes in its table only.",
         "",
         "| scene | region | speed-up | bias^2, multi-scale | noise per sample: multi-scale / brute force "

@@ -6,7 +6,7 @@ corner rounding, probe) and brute force (the fibre-level BSDF averaged over the 
 footprint), their relative difference, and the variance ratio: the variance of one
 footprint evaluation over the variance of one fibre-level sample of the footprint. The
 equal-error speed-up of multi-scale shading under a small light is about the inverse of
-that ratio over the cost ratio of a sample, capped by the bias (DESIGN 4.6).
+that ratio over the cost ratio of a sample, capped by the bias (docs/design.md §4.6).
 
     .venv/bin/python bench/footprint_estimator.py [--roughness 0.05 0.1 0.2] [--out FILE]
 """

@@ -122,7 +122,7 @@ def test_curved_pixel_of_shiny_cloth_matches_brute_force(pair, spread):
     with the sample's normal, brute force each texel with its own. Where the footprint is a
     fraction of a tile and the light grazes across the warp that reads 6-8% low
     (``CURVED_APPROXIMATION``); at the scenes' spreads (0.01-0.06 rad per pixel) it is
-    below the noise (docs/decisions.md)."""
+    below the noise (docs/performance-log.md L15)."""
     half, shear = 24.0, 0.5
     curvature = spread * N_TEXELS / half
     params = dict(SATIN, roughness=0.1, visibility=False)

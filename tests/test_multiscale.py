@@ -47,7 +47,7 @@ def brute_force(params, uv, half, wi, wo):
 # Half-widths (texels) of square footprints of 1, 4, 16, 64, 256 texels, and one 3.5 tiles wide.
 HALVES = [0.5, 1.0, 2.0, 4.0, 8.0, 1.75 * N_TEXELS]
 
-# The stated approximations of the footprint form (docs/decisions.md): D is tabulated on
+# The stated approximations of the footprint form (docs/architecture.md): D is tabulated on
 # 16 x 16 half-vector bins (bilinear), G uses the footprint's mean SGGX matrix, and albedo
 # is factored out of the integral. Together they stay within this relative error here.
 APPROXIMATION = 0.05

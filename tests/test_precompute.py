@@ -1,5 +1,5 @@
 """Multi-scale precomputation: direction bins, residual SATs, visibility, clusters, parallax,
-the per-tile tables and their cache (DESIGN §4)."""
+the per-tile tables and their cache (docs/design.md §4)."""
 from __future__ import annotations
 
 import json

@@ -1,6 +1,6 @@
 """Tests of the pure scattering maths: SGGX (sggx.py), SpongeCake (spongecake.py), sheen (sheen.py).
 
-DESIGN.md §3 (the point BSDF) and §6 (validation). Statistical checks use fixed seeds and
+docs/design.md §3 (the point BSDF) and §6 (validation). Statistical checks use fixed seeds and
 compare a Monte Carlo estimate with its reference to within 5 standard errors, the standard
 error being computed from the samples themselves (plus, where stated, a small floor for the
 float32 arithmetic of the package). Deterministic checks use tolerances derived from float32
@@ -150,7 +150,7 @@ SGGX_OMEGAS = [unit([0.35, 0.2, 0.91]), dir_theta(80.0, 30.0), unit([1.0, 0.0, 0
 
 @pytest.mark.parametrize("alpha", SGGX_ALPHAS)
 def test_sggx_projected_area_identity(alpha):
-    """∫ max(0, ω·m) D(m) dm = σ(ω) (the SGGX normalisation, DESIGN §3).
+    """∫ max(0, ω·m) D(m) dm = σ(ω) (the SGGX normalisation, docs/design.md §3).
 
     Uniform-sphere Monte Carlo over m, 2^21 samples shared by all (t, ω) pairs; the
     integrand is bounded by D_max = 1/(π α), so the estimator has finite variance and its
@@ -313,7 +313,7 @@ def package_reflectance(wi, t, alpha, thickness, n=1 << 22, seed=5):
 
 SLAB_CONFIGS = [
     # (wi, t, alpha, T)
-    (unit([0.35, 0.2, 0.91]), unit([0.3, 0.5, 0.81]), 0.3, 1.7),  # DESIGN §3 known value
+    (unit([0.35, 0.2, 0.91]), unit([0.3, 0.5, 0.81]), 0.3, 1.7),  # docs/design.md §3 known value
     (dir_theta(40.0, 10.0), unit([1.0, 0.0, 0.0]), 0.1, 0.5),  # thin, sharp, in-plane t
     (dir_theta(75.0, 30.0), unit([0.2, -0.4, 0.9]), 0.7, 3.0),  # grazing-ish, out-of-plane t
     (dir_theta(75.0, 100.0), unit([1.0, 1.0, 0.0]), 0.1, 5.0),  # grazing-ish, sharp, thick
@@ -343,7 +343,7 @@ def test_spongecake_matches_slab_simulation(cfg):
 
 
 def test_spongecake_known_value():
-    """DESIGN §3: t = n(0.3, 0.5, 0.81), α = 0.3, T = 1.7, ωi = n(0.35, 0.2, 0.91).
+    """docs/design.md §3: t = n(0.3, 0.5, 0.81), α = 0.3, T = 1.7, ωi = n(0.35, 0.2, 0.91).
 
     R ≈ 0.0168, T ≈ 0.2075 (given to 4 digits, hence the 5e-4 floor on top of 5 SE of the
     integration), unscattered e^{−TΛi} = 0.45291 (float64 here: 0.4529091; float32 in the
@@ -523,7 +523,7 @@ def sample_weights(wi, t, alpha, thickness, n, seed):
 
 @pytest.mark.parametrize("cfg", SLAB_CONFIGS, ids=[f"slab{i}" for i in range(len(SLAB_CONFIGS))])
 def test_sample_specular_weight(cfg):
-    """Path weight eval/pdf = Λi·G ≤ 1 (DESIGN §3), and its mean is R + T.
+    """Path weight eval/pdf = Λi·G ≤ 1 (docs/design.md §3), and its mean is R + T.
 
     Bound: 1 + 1e-4 (float32 evaluation of eval and pdf separately, a few eps32 each, with
     D cancelling only approximately). Mean: compared with the uniform-sphere integral of

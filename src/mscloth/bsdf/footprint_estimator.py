@@ -111,12 +111,12 @@ class FootprintEstimator:
     #: Most probes (slices) across a footprint (more: boxes that fit long turned slices
     #: better, more variance between them). 8 left satin-plane's squared bias at
     #: 3.9e-4 / 3.6e-4 (middle / far), 16 at 6e-5 / 2.6e-5 for 11% / 34% more noise per
-    #: sample (docs/decisions.md).
+    #: sample (docs/performance-log.md L16).
     MAX_PROBES = 16
     #: Least number of cells along each edge (of 2 texels or more) of the parallelogram,
     #: probes being cells: 2 halves the bias of turned footprints (their edges blurred
     #: over smaller cells) but doubles the noise under an independent sampler (satin:
-    #: bias^2 1.8e-4 -> 1.2e-4 far, noise per sample 0.047 -> 0.091; docs/decisions.md).
+    #: bias^2 1.8e-4 -> 1.2e-4 far, noise per sample 0.047 -> 0.091; docs/performance-log.md L15).
     CELLS = 1
 
     # The footprint BSDF is sampled as a mixture: a lobe chosen by the footprint's
@@ -159,7 +159,7 @@ class FootprintEstimator:
     def footprint(self, si, fr: ViewFrame, u, u_probe=None) -> Footprint:
         """The pixel footprint's probe (a texel box), and whether to shade it as one.
 
-        Convention (docs/decisions.md): the footprint is the parallelogram spanned by
+        Convention (docs/architecture.md): the footprint is the parallelogram spanned by
         si.duv_dx and si.duv_dy, centred on si.uv. It is cut along one edge into the n
         slices (n <= ``MAX_PROBES``) whose bounding boxes cover the least area (one for
         an axis-aligned rectangle; the edge that does better), and one slice (by the
@@ -241,7 +241,7 @@ class FootprintEstimator:
         # slice's ends are slanted the box cuts into it as far as it reaches beyond,
         # so the pixel's edges blur over a fraction of a slice instead of the
         # bounding box's overhang adding texels from outside the pixel: 2-10% of bias
-        # at 12^2 texels sheared (bench/footprint_bias_scan.py, docs/decisions.md).
+        # at 12^2 texels sheared (bench/footprint_bias_scan.py, docs/performance-log.md L15).
         px, py = lx * dr.rcp(n), ly * dr.rcp(n)
         var_x = px * px + sx * sx
         var_y = py * py + sy * sy
@@ -304,7 +304,7 @@ class FootprintEstimator:
         # exact area instead, the integrals were unbiased but not bounded: at 2-4 texels
         # the yarn coverage of a gap-free footprint read 0.54-1.62, so the gap lobe let
         # light through where there are no gaps (its negative values cannot be sampled)
-        # and lobe probabilities reached -39 and +40 (docs/decisions.md).
+        # and lobe probabilities reached -39 and +40 (docs/performance-log.md L10).
         box, q = self.rounded_box(fp, xi_round)
         inv_area = dr.rcp(q.area)
 
@@ -358,7 +358,7 @@ class FootprintEstimator:
         # its own table, needs no guard. A fixed share spent a tenth of the samples at
         # grazing angles, where the sheen is almost all (weight variance at 88 degrees:
         # 0.029 -> 0.001); the root keeps a little more at middle angles, where the cosine
-        # still helps the transmitted flake lobe (docs/decisions.md).
+        # still helps the transmitted flake lobe (docs/performance-log.md L1).
         probs = st.probs
         yarn_share = probs[SPECULAR_REFLECTION] + probs[DIFFUSE_REFLECTION] + probs[DIFFUSE_TRANSMISSION]
         st.eps_c = eps_c = self.DEFENSIVE_COSINE * dr.sqrt(yarn_share)
@@ -429,7 +429,7 @@ class FootprintEstimator:
             h_table = dr.select(h_table.z < 0.0, -h_table, h_table)
             # The four bins around h with their bilinear weights, deterministically: a
             # random pick of one (a quarter of the reads) was most of the estimator's own
-            # noise on shiny cloth near and in the middle distance (docs/decisions.md).
+            # noise on shiny cloth near and in the middle distance (docs/performance-log.md L15).
             bins_h = hemisphere_bins(h_table, fd.dr)
             d_yarn = fd.d_integral(st.q, *bins_h) * st.inv_area  # mean over P of D I
             # f_rs per unit D: G of the footprint's mean SGGX matrix (g_bar), and of each
@@ -460,7 +460,7 @@ class FootprintEstimator:
                     # Each cluster's visibility weighted by its share of the footprint's D:
                     # its share of the footprint times its mean D over the tile. Exact for
                     # footprints of whole tiles; Alg. 4's texel_mean (the fallback) is off
-                    # by -Cov(D, v) at every size (docs/decisions.md).
+                    # by -Cov(D, v) at every size (docs/performance-log.md L3).
                     m_c = fd.cluster_d_means(*bins_h)
                     num = mi.Float(0.0)
                     den = mi.Float(0.0)
@@ -476,7 +476,7 @@ class FootprintEstimator:
                         # texel's cluster visibility left it 2-57% off there. Over whole
                         # tiles the base is exact for that one, whose residual varies far
                         # less (a 384^2 footprint's variance ratio 0.06 against 0.41)
-                        # (bench/footprint_bias_scan.py, docs/decisions.md).
+                        # (bench/footprint_bias_scan.py, docs/performance-log.md L15).
                         x0, y0, x1, y1 = st.fp.box
                         whole_tiles = (x1 - x0 >= fibre.tile.tile_w) & (y1 - y0 >= fibre.tile.tile_h)
                         vbar_spec = [dr.select(whole_tiles, vb, w_bar) for vb in vbar_p]
@@ -487,7 +487,7 @@ class FootprintEstimator:
                     residual += d * v * g - db * vbar * g_bar
                 # An unbiased control-variate estimate: it can dip below zero for the
                 # residual texels (V(p) = 0 under a bright base); clamping it biased
-                # grazing highlights by up to +90% (docs/decisions.md), so we do not.
+                # grazing highlights by up to +90% (docs/performance-log.md L3), so we do not.
                 spec = base * g_bar + residual * (1.0 / len(texels))
             else:
                 residual = mi.Float(0.0)

@@ -14,7 +14,7 @@ actual albedo (the mean weight of lobe-only fibre-level samples over random texe
 azimuths) to the mean of its proxy, and the sampler multiplies each proxy by its ratio.
 Any positive factor keeps sampling unbiased (``pdf`` uses the same probabilities); good
 ones cut the variance of the sample weight at 40-75 degrees 3-4x for footprints and
-1.1-1.4x at the fibre level (docs/decisions.md).
+1.1-1.4x at the fibre level (docs/performance-log.md L6).
 
 Albedo shares are the best choice only where every lobe samples its own shape exactly.
 Where one does not (the flake lobe's transmitted half; the footprint mixture, which samples

@@ -58,7 +58,8 @@ BOOL_PARAMETERS = {
     "parallax": (False, "shift lookups to where the view ray meets the height field (not reciprocal)"),
 }
 
-#: Every parameter the plugin reads: those of the table in its docstring (``cloth.DOCSTRING``).
+#: Every parameter the plugin reads: each has one row in the docs' table
+#: (:data:`.parameter_docs.PARAMETER_DOCS`; tests/test_parameter_docs.py).
 PARAMETER_NAMES = ("fabric", "pattern", "resolution", *FLOAT_PARAMETERS, *SPECTRUM_PARAMETERS, *BOOL_PARAMETERS,
                    *INT_PARAMETERS)
 

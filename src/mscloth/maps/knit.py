@@ -1,6 +1,6 @@
 """Cloth maps of a weft-knitted fabric from a stitch grid: loop geometry, fibre twist, holes.
 
-Geometry (our reading of DESIGN §5; a sinusoidal loop model in the spirit of the classic
+Geometry (our reading of docs/design.md §5; a sinusoidal loop model in the spirit of the classic
 Peirce / Leaf loop models, not a quote of the paper):
 
 * Units: the wale spacing is 1 ("wale units"); the course spacing is ``loop_aspect`` = a.

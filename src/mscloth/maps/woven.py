@@ -1,6 +1,6 @@
 """Cloth maps of a woven fabric from a drawdown: yarn geometry, fibre twist, gaps, colours.
 
-Geometry (our reading of DESIGN §5, not a quote of the paper):
+Geometry (our reading of docs/design.md §5, not a quote of the paper):
 
 * The tile holds exactly one repeat of the drawdown (shape (n_weft, n_warp)). Warp end j is
   the column band u in [j/n_warp, (j+1)/n_warp) and runs along +v; weft pick i is the row band

@@ -1,4 +1,4 @@
-"""NumPy precomputation for multi-scale shading (DESIGN §4): direction bins, residual
+"""NumPy precomputation for multi-scale shading (docs/design.md §4): direction bins, residual
 summed-area tables, height-field visibility and its clusters, parallax offsets, and the
 cached per-tile :class:`MultiscaleTables`.
 """

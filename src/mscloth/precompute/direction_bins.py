@@ -124,7 +124,7 @@ def bins_for_roughness(alpha: float) -> int:
     about alpha wide in h.t, and the bins must resolve it. Measured on a dense satin at
     alpha 0.1 (``bench/footprint_estimator.py``): 32 bins instead of 16 cut the variance of
     a footprint evaluation 4-10x at 256 texels and more (the residual texels' control
-    variate is each texel's binned D; docs/decisions.md)."""
+    variate is each texel's binned D; docs/performance-log.md L15)."""
     for lowest, bins in BINS_BY_ROUGHNESS:
         if alpha >= lowest:
             return bins

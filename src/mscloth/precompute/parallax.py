@@ -1,4 +1,4 @@
-"""Parallax offsets (supplement Algorithm 3, our reading; DESIGN §4.4).
+"""Parallax offsets (supplement Algorithm 3, our reading; docs/design.md §4.4).
 
 For texel (r, c) and viewer direction w (centre of an upper-hemisphere bin of
 :mod:`.direction_bins`, pointing toward the viewer, tile frame x = u, y = v, z = normal): the

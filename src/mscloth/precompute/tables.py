@@ -1,4 +1,4 @@
-"""All per-tile tables of the multi-scale BSDF (DESIGN §4), their build, and an on-disk cache.
+"""All per-tile tables of the multi-scale BSDF (docs/design.md §4), their build, and an on-disk cache.
 
 Coordinates of every SAT query are texel units: x = u*W along columns, y = v*H along rows;
 texel (r, c) covers [c, c+1) x [r, r+1); queries are periodic (see :mod:`.summed_area`).
@@ -355,7 +355,7 @@ def build_tables(maps, roughness, dr: int = 16, dv: int = 8, clusters: int = 8,
     march only the first 16+ texels of each visibility ray sample by sample, then blocks (see
     :func:`mscloth.precompute._march.escape_mask`; 512^2 plain weave: front 2.6 s instead of
     6.7 s, back 2.3 s instead of 15.5 s, 0.001 % / 0.02 % of entries differ); False: every
-    sample of every ray (docs/decisions.md). d_rank: 0 for the full directional SAT (dr*dr
+    sample of every ray (docs/performance-log.md L12). d_rank: 0 for the full directional SAT (dr*dr
     channels), K > 0 for its rank-K compression (K channels plus a dr*dr x K basis, see
     :func:`_d_basis`).
     parallax: also build the parallax table (a quarter of the build time and, at dr = 32, more

@@ -1,4 +1,4 @@
-"""Per-texel visibility of the cloth's own height field, and its k-means clusters (DESIGN §4.3).
+"""Per-texel visibility of the cloth's own height field, and its k-means clusters (docs/design.md §4.3).
 
 ``visibility_table(height, n)[r, c, b]`` is 255 where the ray from texel (r, c)'s surface
 point (its centre, at height[r, c]) along the centre direction of bin b (an upper-hemisphere
