@@ -144,7 +144,7 @@ def bench_bsdf_calls(lanes: int = 1 << 21, repeats: int = 7) -> list[tuple[str, 
     import mitsuba as mi
     import numpy as np
 
-    from mscloth.integrators.clothpath import eval_pdf_sample_n
+    from mscloth.integrators.bsdf_contract import eval_pdf_sample_n
     from mscloth.jit_arrays import lane_values
     from mscloth.scenes.demo import cost_scene
 

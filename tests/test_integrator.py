@@ -202,17 +202,20 @@ def test_hide_emitters_hides_light_and_sky():
 
 
 def test_invalid_parameters():
-    with pytest.raises(Exception, match="max_depth"):
+    """Bad properties raise mscloth's ParameterError (Mitsuba's loader names it in the
+    RuntimeError it raises in its place)."""
+    error = "ParameterError: clothpath: "
+    with pytest.raises(Exception, match=error + '"max_depth"'):
         mi.load_dict({"type": "clothpath", "max_depth": -2})
-    with pytest.raises(Exception, match="rr_depth"):
+    with pytest.raises(Exception, match=error + '"rr_depth"'):
         mi.load_dict({"type": "clothpath", "rr_depth": 0})
-    with pytest.raises(Exception, match='"emitter_sampling" must be "all" or "one"'):
+    with pytest.raises(Exception, match=error + '"emitter_sampling" must be "all" or "one"'):
         mi.load_dict({"type": "clothpath", "emitter_sampling": "some"})
     for bad in (0, 257, 2.5):
-        with pytest.raises(Exception, match='"emitter_samples" must be an integer in'):
+        with pytest.raises(Exception, match=error + '"emitter_samples" must be an integer in'):
             mi.load_dict({"type": "clothpath", "emitter_samples": bad})
     for name in ("gap_shadows", "scattered_footprints", "footprint_aovs"):
-        with pytest.raises(Exception, match=f'"{name}" must be a boolean'):
+        with pytest.raises(Exception, match=error + f'"{name}" must be a boolean'):
             mi.load_dict({"type": "clothpath", name: "yes"})
 
 
@@ -595,6 +598,42 @@ def test_scalar_variant_matches_path():
     worst = float(out.stdout.split("WORST")[1].split()[0])
     assert worst <= 1e-4, worst
     assert float(out.stdout.split("ALL")[1]) <= 5.0
+
+
+_SCALAR_AOV_SCRIPT = r"""
+import sys, mscloth, mitsuba as mi, numpy as np
+mi.set_variant("scalar_rgb")
+mi.set_log_level(mi.LogLevel.Error)
+mscloth.register()
+T = mi.ScalarTransform4f
+scene = mi.load_dict({
+    "type": "scene", "integrator": {"type": "clothpath", "footprint_aovs": True},
+    "sensor": {"type": "perspective", "fov": 40, "to_world": T().look_at([0, 0, 3], [0, 0, 0], [0, 1, 0]),
+               "film": {"type": "hdrfilm", "width": 8, "height": 8, "rfilter": {"type": "box"}}},
+    "sky": {"type": "constant", "radiance": 0.5},
+    "cloth": {"type": "rectangle", "to_world": T().scale(0.5), "bsdf": {"type": "cloth", "resolution": 16}}})
+np.save(sys.argv[1], np.array(mi.render(scene, spp=1, seed=0)))
+"""
+
+
+def test_scalar_variant_records_footprint_aovs(tmp_path):
+    """footprint_aovs in scalar_rgb, where camera rays miss (a miss has no BSDF to ask for its
+    texels: scalar clothpath dereferenced a null shape there): a unit UV square seen head-on
+    across N = 8 / (2 * 3 tan 20 deg) pixels gets half-widths 1/(2N) and 16 * 2/(2N) texels
+    where the cloth is seen, 0 around it."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", _SCALAR_AOV_SCRIPT, str(tmp_path / "aov.npy")],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    aov = np.load(tmp_path / "aov.npy")[..., -4:]
+    on_cloth = aov[..., 0] > 0.0
+    assert 0 < on_cloth.sum() < on_cloth.size
+    half = 1.0 / (2.0 * 8.0 / (2.0 * 3.0 * math.tan(math.radians(20.0))))
+    np.testing.assert_allclose(aov[on_cloth][:, :2], half, rtol=0.05)
+    np.testing.assert_allclose(aov[on_cloth][:, 2:], 16 * 2 * half, rtol=0.05)
+    assert np.all(aov[~on_cloth] == 0.0)
 
 
 # ----------------------------------------------------------------------------------------

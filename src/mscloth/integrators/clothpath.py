@@ -5,9 +5,13 @@ Plugin classes bind to the Mitsuba variant active when they are defined, so
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 
+from ..errors import ParameterError
+from . import bsdf_contract as contract
 from . import footprint as fp
 from . import gap_shadows
 
@@ -109,6 +113,7 @@ widths in texels of the BSDF's pattern tile (BSDFs with ``footprint_texels``, i.
 0 elsewhere).
 """
 
+
 _UINT32_MAX = 0xFFFFFFFF
 #: AOVs of ``footprint_aovs``: UV half-widths, and full widths in texels of the BSDF's tile.
 AOV_NAMES = ("footprint_u", "footprint_v", "footprint_texels_u", "footprint_texels_v")
@@ -117,21 +122,57 @@ AOV_NAMES = ("footprint_u", "footprint_v", "footprint_texels_u", "footprint_texe
 def _read_properties(props):
     max_depth = props.get("max_depth", -1)
     if not isinstance(max_depth, int) or (max_depth < 0 and max_depth != -1):
-        raise ValueError('clothpath: "max_depth" must be -1 (infinite) or an integer >= 0, '
-                         f"got {max_depth!r}")
+        raise ParameterError('clothpath: "max_depth" must be -1 (infinite) or an integer >= 0, '
+                             f"got {max_depth!r}")
     rr_depth = props.get("rr_depth", 5)
     if not isinstance(rr_depth, int) or rr_depth <= 0:
-        raise ValueError(f'clothpath: "rr_depth" must be an integer > 0, got {rr_depth!r}')
+        raise ParameterError(f'clothpath: "rr_depth" must be an integer > 0, got {rr_depth!r}')
     emitter_sampling = props.get("emitter_sampling", "all")
     if emitter_sampling not in ("all", "one"):
-        raise ValueError('clothpath: "emitter_sampling" must be "all" or "one", '
-                         f"got {emitter_sampling!r}")
+        raise ParameterError('clothpath: "emitter_sampling" must be "all" or "one", '
+                             f"got {emitter_sampling!r}")
     emitter_samples = props.get("emitter_samples", 1)
     if not isinstance(emitter_samples, int) or not 1 <= emitter_samples <= 256:
-        raise ValueError('clothpath: "emitter_samples" must be an integer in [1, 256], '
-                         f"got {emitter_samples!r}")
+        raise ParameterError('clothpath: "emitter_samples" must be an integer in [1, 256], '
+                             f"got {emitter_samples!r}")
     return ((_UINT32_MAX if max_depth == -1 else max_depth), rr_depth, emitter_sampling,
             emitter_samples)
+
+
+def _read_flag(props, name):
+    value = props.get(name, _FLAGS[name])
+    if not isinstance(value, bool):
+        raise ParameterError(f'clothpath: "{name}" must be a boolean, got {value!r}')
+    return value
+
+
+#: Boolean properties and their defaults (``footprint_aovs`` off: an RGB image from
+#: mi.render, as with Mitsuba's ``path``).
+_FLAGS = {"footprint_aovs": False, "scattered_footprints": False, "gap_shadows": True}
+
+
+@dataclass
+class PathState:
+    """The state of one path between two iterations of ``clothpath``'s loop (with the
+    sampler, the loop's state). A dataclass is a Dr.Jit PyTree: ``dr.while_loop`` carries
+    its fields, in JIT variants as symbolic loop variables, in scalar ones as Python values."""
+
+    ray: mi.Ray3f                  #: the ray to trace next
+    pi: mi.PreliminaryIntersection3f  #: its intersection, found at the end of the last iteration
+    throughput: mi.Spectrum
+    result: mi.Spectrum
+    eta: mi.Float                  #: product of the relative IORs crossed (Russian roulette)
+    depth: mi.UInt32
+    valid_ray: mi.Bool             #: the path saw something (else the pixel's alpha is 0)
+    prev_si: mi.Interaction3f      #: the last scattering vertex before any gap crossings (MIS)
+    prev_bsdf_pdf: mi.Float        #: its BSDF sample's pdf
+    prev_bsdf_delta: mi.Bool       #: its BSDF sample was a delta lobe
+    active: mi.Bool
+    cone_width: mi.Float           #: ray-cone width at the previous vertex
+    cone_spread: mi.Float          #: ray-cone spread angle
+    aovs: tuple                    #: the ``AOV_NAMES`` values (recorded at the first hit)
+    delta_chain: mi.Bool           #: only delta bounces so far (the footprint is kept)
+    gap_run: mi.UInt32             #: gap crossings since prev_si
 
 
 def mis_weight(pdf_a, pdf_b):
@@ -142,51 +183,16 @@ def mis_weight(pdf_a, pdf_b):
     return dr.detach(dr.select(dr.isfinite(w), w, 0.0))
 
 
-def eval_pdf_sample_n(bsdf, ctx, si, si_centred, wos, sample1, sample2, active=True, pixel_offset=None):
-    """eval_pdf at each direction of ``wos`` and one sample: ([values], [pdfs], bs, weight).
-
-    BSDFs with their own ``eval_pdf_sample_n`` (``cloth``) share the work of one shading
-    point between all directions; those that shade whole footprints (``footprint_shading``
-    true: multi-scale ``cloth``) see ``si_centred`` (uv at the pixel centre on first hits,
-    see :mod:`.footprint`). Others get eval_pdf / sample calls on ``si`` (one direction:
-    eval_pdf_sample, exactly as ``path``). ``pixel_offset``: the camera sample's offset
-    from its pixel centre in pixels (each coordinate in [-1/2, 1/2); -1 where unknown),
-    for footprint-shading BSDFs: the part of the footprint that the sample stands for."""
-    if hasattr(bsdf, "eval_pdf_sample_n"):
-        if getattr(bsdf, "footprint_shading", False):
-            return bsdf.eval_pdf_sample_n(ctx, si_centred, wos, sample1, sample2, active, pixel_offset)
-        return bsdf.eval_pdf_sample_n(ctx, si, wos, sample1, sample2, active)
-    if len(wos) == 1:
-        value, pdf, bs, weight = bsdf.eval_pdf_sample(ctx, si, wos[0], sample1, sample2, active)
-        return [value], [pdf], bs, weight
-    values, pdfs = [], []
-    for wo in wos:
-        value, pdf = bsdf.eval_pdf(ctx, si, wo, active)
-        values.append(value)
-        pdfs.append(pdf)
-    bs, weight = bsdf.sample(ctx, si, sample1, sample2, active)
-    return values, pdfs, bs, weight
-
-
 def _is_uniform(emitter):
     """A ``constant`` environment: the same radiance from every direction."""
     return emitter is not None and emitter.class_name() == "ConstantBackgroundEmitter"
 
 
-def _footprint_texels_of(bsdf, si, active=True):
-    if hasattr(bsdf, "footprint_texels"):
-        return bsdf.footprint_texels(si, active)
-    return mi.Float(0.0), mi.Float(0.0)
-
-
-def footprint_texels(bsdf, si, active):
-    """(width_u, width_v): the footprint's full widths in texels of ``bsdf``'s pattern tile
-    (BSDFs with ``footprint_texels``), 0 for other BSDFs and where no surface was hit."""
-    if dr.is_jit_v(mi.Float):
-        return dr.dispatch(bsdf, _footprint_texels_of, si, active)
-    if bsdf is None or not active:
-        return mi.Float(0.0), mi.Float(0.0)
-    return _footprint_texels_of(bsdf, si, active)
+def any_or_true(mask) -> bool:
+    """``dr::any_or<true>`` of Mitsuba's C++: JIT variants run a masked branch on all lanes;
+    scalar variants skip it where their one lane is off (there it may call methods of a None
+    emitter or BSDF, or spend a ray on a sample that counts for nothing)."""
+    return dr.is_jit_v(mi.Float) or bool(mask)
 
 
 def _not(mask):
@@ -211,19 +217,9 @@ def make_clothpath_class():
             mi.SamplingIntegrator.__init__(self, props)
             (self.max_depth, self.rr_depth, self.emitter_sampling,
              self.emitter_samples) = _read_properties(props)
-            # Off by default: an RGB image from mi.render, as with Mitsuba's `path`.
-            self.footprint_aovs = props.get("footprint_aovs", False)
-            if not isinstance(self.footprint_aovs, bool):
-                raise ValueError('clothpath: "footprint_aovs" must be a boolean, '
-                                 f"got {self.footprint_aovs!r}")
-            self.scattered_footprints = props.get("scattered_footprints", False)
-            if not isinstance(self.scattered_footprints, bool):
-                raise ValueError('clothpath: "scattered_footprints" must be a boolean, '
-                                 f"got {self.scattered_footprints!r}")
-            self.gap_shadows = props.get("gap_shadows", True)
-            if not isinstance(self.gap_shadows, bool):
-                raise ValueError('clothpath: "gap_shadows" must be a boolean, '
-                                 f"got {self.gap_shadows!r}")
+            self.footprint_aovs = _read_flag(props, "footprint_aovs")
+            self.scattered_footprints = _read_flag(props, "scattered_footprints")
+            self.gap_shadows = _read_flag(props, "gap_shadows")
 
         def aov_names(self):
             return list(AOV_NAMES) if self.footprint_aovs else []
@@ -261,19 +257,15 @@ def make_clothpath_class():
             ``MAX_CROSSINGS`` layers, others across ``max_crossings``, the most that a
             BSDF-sampled path from here can cross before it reaches its ``max_depth``
             (both strategies must reach a path for their MIS weights to add up to 1)."""
-            jit = dr.is_jit_v(mi.Float)
             active = active & (ds.pdf != 0.0)
-            if jit or active:
+            if any_or_true(active):  # (scalar: no shadow ray for a failed sample)
                 if gaps:
                     # A cheap any-hit test first; only occluded samples trace through.
                     occluded = scene.ray_test(si.spawn_ray_to(ds.p), active)
-                    if jit:
-                        limit = dr.select(ds.delta, mi.UInt32(gap_shadows.MAX_CROSSINGS), max_crossings)
-                    else:
-                        limit = gap_shadows.MAX_CROSSINGS if ds.delta else max_crossings
+                    limit = dr.select(ds.delta, mi.UInt32(gap_shadows.MAX_CROSSINGS), max_crossings)
                     crossing = active & occluded & (limit > 0)
                     through = gap_shadows.shadow_transmittance(scene, si, ds.p, cone_width, cone_spread,
-                                                               crossing, limit) if (jit or crossing) else 0.0
+                                                               crossing, limit)
                     em_weight = em_weight * dr.select(crossing, through, 1.0)
                     active &= dr.select(crossing, through > 0.0, _not(occluded))
                 else:
@@ -299,7 +291,6 @@ def make_clothpath_class():
             n_em = self.emitter_samples
             gap_bsdfs = gap_shadows.gap_bsdfs(scene) if self.gap_shadows else []
             gaps = bool(gap_bsdfs)
-            gap_ptrs = [mi.BSDFPtr(b) for b in gap_bsdfs] if jit else []
             # Offsets of camera samples from their pixel centres (perspective and
             # orthographic cameras), for footprint-shading BSDFs.
             centring = fp.pixel_centring(scene, ray_d) if has_diff else None
@@ -311,31 +302,22 @@ def make_clothpath_class():
                 # Directly visible area emitters: skip all of them along the camera ray.
                 if jit:
                     skip = pi.is_valid() & (pi.shape.emitter() != None) & active  # noqa: E711
-                else:
+                else:  # (scalar: a miss has no shape to ask)
                     skip = bool(active and pi.is_valid() and pi.shape.emitter() is not None)
-                if jit or skip:
+                if any_or_true(skip):
                     si_skip = pi.compute_surface_interaction(ray, mi.RayFlags.Minimal, skip)
                     ray_skip = si_skip.spawn_ray(ray.d)
-                    pi_after = self.skip_area_emitters(scene, ray_skip, True, skip)
-                    if jit:
-                        pi[skip] = pi_after
-                    else:
-                        pi = pi_after
+                    pi = dr.select(skip, self.skip_area_emitters(scene, ray_skip, True, skip), pi)
 
-            def loop_cond(state):
-                return state[10]  # active
-
-            def loop_body(state):
-                (sampler, ray, pi, throughput, result, eta, depth, valid_ray, prev_si,
-                 prev_bsdf_pdf, active, prev_bsdf_delta, cone_w, cone_spread, aovs, delta_chain,
-                 gap_run) = state
-
-                si = pi.compute_surface_interaction(ray, mi.RayFlags.All)
+            def body(sampler, s: PathState):
+                si = s.pi.compute_surface_interaction(s.ray, mi.RayFlags.All)
+                # (scalar: a miss has no shape, and si.bsdf() would dereference it)
+                bsdf = si.bsdf() if any_or_true(si.is_valid()) else None
 
                 # ------------------------- Footprint -------------------------
-                first = depth == 0
-                w_hit = fp.cone_width(cone_w, cone_spread, si.t)
-                c_dx, c_dy = fp.cone_footprint(w_hit, ray.d, si.n, si.dp_du, si.dp_dv)
+                first = s.depth == 0
+                w_hit = fp.cone_width(s.cone_width, s.cone_spread, si.t)
+                c_dx, c_dy = fp.cone_footprint(w_hit, s.ray.d, si.n, si.dp_du, si.dp_dv)
                 if has_diff:
                     r_dx, r_dy = fp.differential_footprint(si.p, si.n, si.dp_du, si.dp_dv,
                                                            o_x, d_x, o_y, d_y)
@@ -344,50 +326,49 @@ def make_clothpath_class():
                 else:
                     si.duv_dx = c_dx
                     si.duv_dy = c_dy
-                shadow_w, shadow_spread = w_hit, cone_spread
+                shadow_w, shadow_spread = w_hit, s.cone_spread
                 if not scattered_footprints:
                     # Only camera rays and their delta chains carry a footprint; shadow rays
                     # from a vertex shaded at a point cross cloth at a point too.
-                    si.duv_dx = dr.select(delta_chain, si.duv_dx, 0.0)
-                    si.duv_dy = dr.select(delta_chain, si.duv_dy, 0.0)
-                    shadow_w = dr.select(delta_chain, w_hit, 0.0)
-                    shadow_spread = dr.select(delta_chain, cone_spread, 0.0)
+                    si.duv_dx = dr.select(s.delta_chain, si.duv_dx, 0.0)
+                    si.duv_dy = dr.select(s.delta_chain, si.duv_dy, 0.0)
+                    shadow_w = dr.select(s.delta_chain, w_hit, 0.0)
+                    shadow_spread = dr.select(s.delta_chain, s.cone_spread, 0.0)
                 if footprint_aovs:
                     record = first & si.is_valid()
                     h_u, h_v = fp.half_widths(si.duv_dx, si.duv_dy)
-                    t_u, t_v = footprint_texels(si.bsdf(), si, record)
-                    aovs = tuple(dr.select(record, new, old)
-                                 for new, old in zip((h_u, h_v, t_u, t_v), aovs))
+                    t_u, t_v = contract.call(bsdf, contract.footprint_texels, si, record, active=record,
+                                             default=(mi.Float(0.0), mi.Float(0.0)))
+                    s.aovs = tuple(dr.select(record, new, old)
+                                   for new, old in zip((h_u, h_v, t_u, t_v), s.aovs))
 
                 # ---------------------- Direct emission ----------------------
-                # (JIT variants always take this branch, as path.cpp's any_or<true>.)
-                if jit or si.emitter(scene) is not None:
-                    ds = mi.DirectionSample3f(scene, si=si, ref=prev_si)
+                # (scalar: a surface without emitter has none to evaluate)
+                if any_or_true(si.emitter(scene) is not None):
+                    ds = mi.DirectionSample3f(scene, si=si, ref=s.prev_si)
                     em_pdf = mi.Float(0.0)
-                    if jit or not prev_bsdf_delta:
+                    if any_or_true(_not(s.prev_bsdf_delta)):  # (scalar: none after a delta bounce)
                         if all_emitters:  # no emitter selection: the emitter's own pdf
-                            em_pdf = ds.emitter.pdf_direction(prev_si, ds, _not(prev_bsdf_delta))
+                            em_pdf = ds.emitter.pdf_direction(s.prev_si, ds, _not(s.prev_bsdf_delta))
                         else:
-                            em_pdf = scene.pdf_emitter_direction(prev_si, ds, _not(prev_bsdf_delta))
+                            em_pdf = scene.pdf_emitter_direction(s.prev_si, ds, _not(s.prev_bsdf_delta))
                         if gaps:
                             # prev_si is the vertex before the gap crossings (if any); past
                             # MAX_CROSSINGS of them its shadow rays do not reach the emitter.
-                            em_pdf = dr.select(gap_run <= gap_shadows.MAX_CROSSINGS, em_pdf, 0.0)
+                            em_pdf = dr.select(s.gap_run <= gap_shadows.MAX_CROSSINGS, em_pdf, 0.0)
                     if env_by_bsdf:
                         em_pdf = dr.select(si.is_valid(), em_pdf, 0.0)
                     # Only non-delta emitters can be hit, and each had n_em samples.
-                    mis_bsdf = mis_weight(prev_bsdf_pdf, n_em * em_pdf)
-                    result = spec_fma(throughput,
-                                      ds.emitter.eval(si, prev_bsdf_pdf > 0.0) * mis_bsdf, result)
+                    mis_bsdf = mis_weight(s.prev_bsdf_pdf, n_em * em_pdf)
+                    s.result = spec_fma(s.throughput,
+                                        ds.emitter.eval(si, s.prev_bsdf_pdf > 0.0) * mis_bsdf, s.result)
 
                 # Continue tracing the path at this point?
-                active_next = (depth + 1 < max_depth) & si.is_valid()
-                if not jit and not active_next:  # scalar variants stop here, as path.cpp does
-                    return (sampler, ray, pi, throughput, result, eta, depth, valid_ray,
-                            prev_si, prev_bsdf_pdf, False, prev_bsdf_delta, cone_w,
-                            cone_spread, aovs, delta_chain, gap_run)
-
-                bsdf = si.bsdf()
+                active_next = (s.depth + 1 < max_depth) & si.is_valid()
+                if not any_or_true(active_next):
+                    # Scalar variants stop here, as path.cpp does (a miss has no BSDF).
+                    s.active = False
+                    return sampler, s
 
                 # ---------------------- Emitter sampling ---------------------
                 active_em = active_next & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
@@ -396,13 +377,10 @@ def make_clothpath_class():
                 # BSDF path from here can cross through gaps (each crossing is a vertex of
                 # the path) and still count the emitter it then hits (depth + 1 + k < max_depth).
                 max_crossings = 0
-                if gaps and (jit or active_em):
-                    if jit:
-                        room = dr.select(depth + 2 <= max_depth, mi.UInt32(max_depth) - depth - 2, 0)
-                        max_crossings = dr.minimum(room, gap_shadows.MAX_CROSSINGS)
-                    else:
-                        max_crossings = max(0, min(max_depth - depth - 2, gap_shadows.MAX_CROSSINGS))
-                if jit or active_em:
+                if gaps:
+                    room = dr.select(s.depth + 2 <= max_depth, mi.UInt32(max_depth) - s.depth - 2, 0)
+                    max_crossings = dr.minimum(room, gap_shadows.MAX_CROSSINGS)
+                if any_or_true(active_em):  # (scalar: no sample where none counts)
                     if all_emitters:
                         for emitter in emitters:
                             delta = mi.has_flag(emitter.flags(), mi.EmitterFlags.Delta)
@@ -433,37 +411,32 @@ def make_clothpath_class():
                     centre = fp.centred_uv(si.uv, si.duv_dx, si.duv_dy, ox, oy)
                     si_centred.uv = dr.select(centre_ok, centre, si.uv)
                     pixel_offset = dr.select(centre_ok, mi.Point2f(ox, oy), pixel_offset)
-                if jit:
-                    # Lanes whose path ends here skip the BSDF (as path.cpp masks it with
-                    # active_next): a footprint shading is costly, and its result unused.
-                    shaded = dr.select(active_next, bsdf, dr.zeros(mi.BSDFPtr))
-                    bsdf_vals, bsdf_pdfs, bsdf_sample, bsdf_weight = dr.dispatch(
-                        shaded, eval_pdf_sample_n, bsdf_ctx, si, si_centred, wos, sample_1, sample_2, True,
-                        pixel_offset)
-                else:
-                    bsdf_vals, bsdf_pdfs, bsdf_sample, bsdf_weight = eval_pdf_sample_n(
-                        bsdf, bsdf_ctx, si, si_centred, wos, sample_1, sample_2, True, pixel_offset)
+                # Lanes whose path ends here skip the BSDF (as path.cpp masks it with
+                # active_next): a footprint shading is costly, and its result unused.
+                bsdf_vals, bsdf_pdfs, bsdf_sample, bsdf_weight = contract.call(
+                    bsdf, contract.eval_pdf_sample_n, bsdf_ctx, si, si_centred, wos, sample_1, sample_2,
+                    True, pixel_offset, active=active_next)
 
                 # ---------------- Emitter sampling contribution ---------------
                 for (ds, em_weight, em_active, wo), bsdf_val, bsdf_pdf in zip(em_samples, bsdf_vals, bsdf_pdfs):
-                    if ds is not None and (jit or em_active):
+                    if ds is not None and any_or_true(em_active):
                         bsdf_val = si.to_world_mueller(bsdf_val, -wo, si.wi)
                         # A delta sample is the only one of its emitter (``all``); with
                         # ``one`` it is one of n_em estimates like the others.
                         share = 1.0 / n_em if not all_emitters else dr.select(ds.delta, 1.0, 1.0 / n_em)
                         mis_em = dr.select(ds.delta, 1.0, mis_weight(n_em * ds.pdf, bsdf_pdf)) * share
-                        result = dr.select(em_active,
-                                           spec_fma(throughput, bsdf_val * em_weight * mis_em, result),
-                                           result)
+                        s.result = dr.select(em_active,
+                                             spec_fma(s.throughput, bsdf_val * em_weight * mis_em, s.result),
+                                             s.result)
 
                 # ----------------------- BSDF sampling ------------------------
                 bsdf_weight = si.to_world_mueller(bsdf_weight, -bsdf_sample.wo, si.wi)
-                ray = si.spawn_ray(si.to_world(bsdf_sample.wo))
+                s.ray = si.spawn_ray(si.to_world(bsdf_sample.wo))
 
                 # ------- Update loop variables based on current interaction -----
-                throughput = throughput * bsdf_weight
-                eta = eta * bsdf_sample.eta
-                valid_ray = valid_ray | (active & si.is_valid() & _not(
+                s.throughput = s.throughput * bsdf_weight
+                s.eta = s.eta * bsdf_sample.eta
+                s.valid_ray = s.valid_ray | (s.active & si.is_valid() & _not(
                     mi.has_flag(bsdf_sample.sampled_type, mi.BSDFFlags.Null)))
                 sampled_delta = mi.has_flag(bsdf_sample.sampled_type, mi.BSDFFlags.Delta)
                 # A crossing through the gap of cloth is a null interface to MIS: shadow rays
@@ -471,74 +444,48 @@ def make_clothpath_class():
                 # its pdf, for the emitter the path may hit next.
                 crossed = False
                 if gaps:
-                    crossed = active_next & mi.has_flag(bsdf_sample.sampled_type,
-                                                        mi.BSDFFlags.DeltaTransmission)
-                    if jit:
-                        on_gap_bsdf = mi.Bool(False)
-                        for ptr in gap_ptrs:
-                            on_gap_bsdf |= bsdf == ptr
-                        crossed &= on_gap_bsdf
-                    else:
-                        crossed = crossed and hasattr(bsdf, "gap_transmission")
-                if gaps and jit:
-                    prev_si = dr.select(crossed, prev_si, mi.Interaction3f(si))
-                    prev_bsdf_pdf = dr.select(crossed, prev_bsdf_pdf, bsdf_sample.pdf)
-                    prev_bsdf_delta = dr.select(crossed, prev_bsdf_delta, sampled_delta)
-                    gap_run = dr.select(crossed, gap_run + 1, 0)
-                elif not crossed:
-                    prev_si = mi.Interaction3f(si)
-                    prev_bsdf_pdf = bsdf_sample.pdf
-                    prev_bsdf_delta = sampled_delta
-                    gap_run = mi.UInt32(0)
-                else:
-                    gap_run = gap_run + 1
-                delta_chain = delta_chain & sampled_delta
+                    crossed = (active_next & gap_shadows.is_gap_bsdf(bsdf, gap_bsdfs)
+                               & mi.has_flag(bsdf_sample.sampled_type, mi.BSDFFlags.DeltaTransmission))
+                s.prev_si = dr.select(crossed, s.prev_si, mi.Interaction3f(si))
+                s.prev_bsdf_pdf = dr.select(crossed, s.prev_bsdf_pdf, bsdf_sample.pdf)
+                s.prev_bsdf_delta = dr.select(crossed, s.prev_bsdf_delta, sampled_delta)
+                s.gap_run = dr.select(crossed, s.gap_run + 1, mi.UInt32(0))
+                s.delta_chain = s.delta_chain & sampled_delta
 
                 # The cone leaves this vertex with its width here, spread by the lobe.
-                cone_w = w_hit
-                cone_spread = fp.bounce_spread(cone_spread, bsdf_sample.pdf, sampled_delta)
+                s.cone_width = w_hit
+                s.cone_spread = fp.bounce_spread(s.cone_spread, bsdf_sample.pdf, sampled_delta)
 
                 # -------------------- Stopping criterion ---------------------
-                depth = dr.select(si.is_valid(), depth + 1, depth)
-                throughput_max = dr.max(mi.unpolarized_spectrum(throughput))
-                rr_prob = dr.minimum(throughput_max * dr.square(eta), 0.95)
-                rr_active = depth >= rr_depth
+                s.depth = dr.select(si.is_valid(), s.depth + 1, s.depth)
+                throughput_max = dr.max(mi.unpolarized_spectrum(s.throughput))
+                rr_prob = dr.minimum(throughput_max * dr.square(s.eta), 0.95)
+                rr_active = s.depth >= rr_depth
                 rr_continue = sampler.next_1d() < rr_prob
-                throughput = dr.select(rr_active, throughput * dr.rcp(dr.detach(rr_prob)),
-                                       throughput)
-                active = active_next & (_not(rr_active) | rr_continue) & (throughput_max != 0.0)
+                s.throughput = dr.select(rr_active, s.throughput * dr.rcp(dr.detach(rr_prob)),
+                                         s.throughput)
+                s.active = active_next & (_not(rr_active) | rr_continue) & (throughput_max != 0.0)
 
-                pi = scene.ray_intersect_preliminary(ray, coherent=False, active=active)
-                return (sampler, ray, pi, throughput, result, eta, depth, valid_ray, prev_si,
-                        prev_bsdf_pdf, active, prev_bsdf_delta, cone_w, cone_spread, aovs, delta_chain,
-                        gap_run)
+                s.pi = scene.ray_intersect_preliminary(s.ray, coherent=False, active=s.active)
+                return sampler, s
 
-            state = (
-                sampler, ray, pi,
-                mi.Spectrum(1.0),                 # throughput
-                mi.Spectrum(0.0),                 # result
-                mi.Float(1.0),                    # eta
-                mi.UInt32(0),                     # depth
+            state = PathState(
+                ray=ray, pi=pi,
+                throughput=mi.Spectrum(1.0), result=mi.Spectrum(0.0), eta=mi.Float(1.0),
+                depth=mi.UInt32(0),
                 # If emitters are not hidden, the environment is visible.
-                mi.Bool((not hide_emitters) and scene.environment() is not None),
-                dr.zeros(mi.Interaction3f),       # prev_si
-                mi.Float(1.0),                    # prev_bsdf_pdf
-                mi.Bool(active),                  # active
-                mi.Bool(True),                    # prev_bsdf_delta
-                mi.Float(width0),                 # cone width at the previous vertex
-                mi.Float(spread0),                # cone spread angle
-                tuple(mi.Float(0.0) for _ in AOV_NAMES),  # AOVs
-                mi.Bool(True),                    # only delta bounces so far
-                mi.UInt32(0),                     # gap crossings since prev_si
-            )
-            if jit:
-                state = dr.while_loop((state,), lambda st: loop_cond(st),
-                                      lambda st: (loop_body(st),), label="clothpath")[0]
-            else:
-                while state[10]:
-                    state = loop_body(state)
-            result, valid_ray, aovs = state[4], state[7], state[14]
-            return dr.select(valid_ray, result, 0.0), valid_ray, list(aovs) if footprint_aovs else []
+                valid_ray=mi.Bool((not hide_emitters) and scene.environment() is not None),
+                prev_si=dr.zeros(mi.Interaction3f), prev_bsdf_pdf=mi.Float(1.0),
+                prev_bsdf_delta=mi.Bool(True), active=mi.Bool(active),
+                cone_width=mi.Float(width0), cone_spread=mi.Float(spread0),
+                aovs=tuple(mi.Float(0.0) for _ in AOV_NAMES),
+                delta_chain=mi.Bool(True), gap_run=mi.UInt32(0))
+            # A symbolic loop in JIT variants; in scalar ones, where ``active`` is a Python
+            # bool, dr.while_loop runs the body as a Python while loop.
+            _, state = dr.while_loop((sampler, state), lambda sampler, s: s.active, body,
+                                     label="clothpath")
+            return (dr.select(state.valid_ray, state.result, 0.0), state.valid_ray,
+                    list(state.aovs) if footprint_aovs else [])
 
     ClothPathIntegrator.__name__ = "ClothPathIntegrator"
     ClothPathIntegrator.__qualname__ = "ClothPathIntegrator"

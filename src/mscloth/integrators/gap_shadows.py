@@ -11,15 +11,17 @@ vertex before the crossings (the crossings are transparent to its MIS bookkeepin
 that light is counted once, mostly by the shadow ray, with far less noise than by BSDF
 paths that must hit a small emitter.
 
-BSDFs opt in with ``gap_transmission(si, active)``: the fraction of light that crosses the
-surface along ``-si.wi`` without scattering (``cloth``: T_sheen^2 times the gap fraction of
-the footprint in ``si.duv_dx/dy``, or of the texel). Other surfaces block.
+BSDFs opt in with ``gap_transmission(si, active)`` (:mod:`.bsdf_contract`): the fraction
+of light that crosses the surface along ``-si.wi`` without scattering (``cloth``: T_sheen^2
+times the gap fraction of the footprint in ``si.duv_dx/dy``, or of the texel). Other
+surfaces block.
 """
 from __future__ import annotations
 
 import drjit as dr
 import mitsuba as mi
 
+from . import bsdf_contract as contract
 from . import footprint as fp
 
 #: Most cloth layers a shadow ray crosses; one more blocks it (BSDF-sampled paths to an
@@ -32,7 +34,7 @@ def gap_bsdfs(scene) -> list:
     found = []
     for shape in scene.shapes():
         bsdf = shape.bsdf()
-        if bsdf is not None and hasattr(bsdf, "gap_transmission") and all(bsdf is not b for b in found):
+        if contract.has_gap_transmission(bsdf) and all(bsdf is not b for b in found):
             found.append(bsdf)
     return found
 
@@ -42,10 +44,15 @@ def has_gap_transmission(scene) -> bool:
     return bool(gap_bsdfs(scene))
 
 
-def _gap_transmission(bsdf, si, active=True):
-    if hasattr(bsdf, "gap_transmission"):
-        return bsdf.gap_transmission(si, active)
-    return mi.Float(0.0)
+def is_gap_bsdf(bsdf, found) -> mi.Bool:
+    """Whether ``bsdf`` (a ``BSDFPtr`` in JIT variants) is one of ``found`` (those of
+    :func:`gap_bsdfs`): pointer comparisons per lane, no dispatch."""
+    if not dr.is_jit_v(mi.Float):
+        return contract.has_gap_transmission(bsdf)
+    on_gap = mi.Bool(False)
+    for b in found:
+        on_gap |= bsdf == mi.BSDFPtr(b)
+    return on_gap
 
 
 def _not(mask):
@@ -59,13 +66,9 @@ def shadow_transmittance(scene, si, target, cone_width, cone_spread, active,
     (0 where anything else blocks, or where more than ``max_crossings`` surfaces lie in the
     way), each crossing shaded with the ray cone of the path (width ``cone_width`` at
     ``si``, spread ``cone_spread``) as its footprint."""
-    jit = dr.is_jit_v(mi.Float)
     ray = si.spawn_ray_to(target)
     limit = mi.UInt32(max_crossings)
     state = (ray, mi.Float(1.0), mi.Bool(active), mi.Float(0.0), mi.UInt32(0))
-
-    def cond(ray, trans, going, travelled, crossings):
-        return going
 
     def body(ray, trans, going, travelled, crossings):
         hit_si = scene.ray_intersect(ray, mi.RayFlags.All, False, going)
@@ -77,20 +80,17 @@ def shadow_transmittance(scene, si, target, cone_width, cone_spread, active,
         hit_si.wi = hit_si.to_local(-d)
         width = fp.cone_width(cone_width, cone_spread, travelled + hit_si.t)
         hit_si.duv_dx, hit_si.duv_dy = fp.cone_footprint(width, d, hit_si.n, hit_si.dp_du, hit_si.dp_dv)
-        if jit:
-            crossing = dr.dispatch(hit_si.bsdf(), _gap_transmission, hit_si, hit)
-        else:  # (scalar: an invalid hit has no shape, and bsdf() would crash)
-            crossing = _gap_transmission(hit_si.bsdf(), hit_si, hit) if hit else mi.Float(1.0)
+        # (scalar: a miss has no shape, and bsdf() would dereference it)
+        bsdf = hit_si.bsdf() if (dr.is_jit_v(mi.Float) or hit) else None
+        crossing = contract.call(bsdf, contract.gap_transmission, hit_si, hit, active=hit,
+                                 default=mi.Float(1.0))
         trans = dr.select(blocked, 0.0, dr.select(hit, trans * crossing, trans))
         going = hit & (trans > 0.0)
-        next_ray = hit_si.spawn_ray_to(target)
-        ray = dr.select(going, next_ray, ray) if jit else (next_ray if going else ray)
+        ray = dr.select(going, hit_si.spawn_ray_to(target), ray)
         travelled = dr.select(hit, travelled + hit_si.t, travelled)
         return ray, trans, going, travelled, crossings
 
-    if jit:
-        state = dr.while_loop(state, cond, body, label="gap_shadow")
-    else:
-        while state[2]:
-            state = body(*state)
-    return state[1]
+    # A symbolic loop in JIT variants; a Python while loop in scalar ones (``going`` is a
+    # Python bool there).
+    return dr.while_loop(state, lambda ray, trans, going, travelled, crossings: going, body,
+                         label="gap_shadow")[1]

@@ -1,0 +1,118 @@
+"""What ``clothpath`` and its gap shadows expect of a footprint-aware BSDF.
+
+Any ``mi.BSDF`` renders under ``clothpath``; a BSDF may in addition offer the members of
+:class:`FootprintBSDF` (``cloth`` offers all of them). Each member is optional and found on
+the instance, so a BSDF written elsewhere opts in by defining it; the integrators ask
+through the functions below, never with ``hasattr`` of their own. This module knows no
+BSDF class: the integrators stay independent of :mod:`mscloth.bsdf`.
+
+Footprint convention (all members): the footprint of a shading point is the UV
+parallelogram centred on ``si.uv`` spanned by ``si.duv_dx`` and ``si.duv_dy`` (zero: shade
+the point), see :mod:`mscloth.integrators.footprint`.
+"""
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import drjit as dr
+import mitsuba as mi
+
+
+@runtime_checkable
+class FootprintBSDF(Protocol):
+    """The optional members of a BSDF that ``clothpath`` uses (each one on its own).
+
+    ``footprint_shading``
+        True when the BSDF shades whole footprints (multi-scale ``cloth``): at first hits it
+        is handed the uv of the pixel centre (the pixel is its footprint's average) and
+        ``pixel_offset``. Read only together with ``eval_pdf_sample_n``.
+    """
+
+    footprint_shading: bool
+
+    def eval_pdf_sample_n(self, ctx, si, wos, sample1, sample2, active=True, pixel_offset=None):
+        """``([value], [pdf], bs, weight)``: ``eval_pdf`` (times cos) at each direction of
+        ``wos`` (local frame) and one ``sample``, sharing the work of one shading point.
+        ``pixel_offset`` (``footprint_shading`` BSDFs only, at first hits): the camera
+        sample's offset from its pixel centre in pixels, each coordinate in [-1/2, 1/2),
+        -1 where unknown: the part of the footprint the sample stands for. Must use
+        ``sample1``/``sample2`` as ``sample`` would (same random-number order)."""
+
+    def footprint_texels(self, si, active=True):
+        """``(width_u, width_v)``: the footprint's full widths in texels of the BSDF's
+        pattern tile (the ``footprint_texels_*`` AOVs), 0 where inactive."""
+
+    def gap_transmission(self, si, active=True):
+        """The fraction of light crossing the surface straight along ``-si.wi`` through
+        its gaps (a delta transmission lobe of the BSDF, a null interface to light
+        transport), over the footprint in ``si.duv_dx/dy``. Shadow rays cross such
+        surfaces (:mod:`.gap_shadows`); others block them."""
+
+
+def shades_n_directions(bsdf) -> bool:
+    """Whether ``bsdf`` evaluates several directions and samples one in one call."""
+    return hasattr(bsdf, "eval_pdf_sample_n")
+
+
+def shades_footprints(bsdf) -> bool:
+    """Whether ``bsdf`` shades whole footprints (wants the pixel centre and offset)."""
+    return shades_n_directions(bsdf) and bool(getattr(bsdf, "footprint_shading", False))
+
+
+def has_footprint_texels(bsdf) -> bool:
+    """Whether ``bsdf`` reports its footprint's size in texels."""
+    return hasattr(bsdf, "footprint_texels")
+
+
+def has_gap_transmission(bsdf) -> bool:
+    """Whether shadow rays cross ``bsdf`` through its gaps (None, no surface: False)."""
+    return bsdf is not None and hasattr(bsdf, "gap_transmission")
+
+
+def eval_pdf_sample_n(bsdf, ctx, si, si_centred, wos, sample1, sample2, active=True, pixel_offset=None):
+    """eval_pdf at each direction of ``wos`` and one sample: ([values], [pdfs], bs, weight).
+
+    BSDFs with their own ``eval_pdf_sample_n`` (``cloth``) share the work of one shading
+    point between all directions; those that shade whole footprints see ``si_centred``
+    (uv at the pixel centre on first hits) and ``pixel_offset``. Others get eval_pdf /
+    sample calls on ``si`` (one direction: eval_pdf_sample, exactly as ``path``)."""
+    if shades_footprints(bsdf):
+        return bsdf.eval_pdf_sample_n(ctx, si_centred, wos, sample1, sample2, active, pixel_offset)
+    if shades_n_directions(bsdf):
+        return bsdf.eval_pdf_sample_n(ctx, si, wos, sample1, sample2, active)
+    if len(wos) == 1:
+        value, pdf, bs, weight = bsdf.eval_pdf_sample(ctx, si, wos[0], sample1, sample2, active)
+        return [value], [pdf], bs, weight
+    values, pdfs = [], []
+    for wo in wos:
+        value, pdf = bsdf.eval_pdf(ctx, si, wo, active)
+        values.append(value)
+        pdfs.append(pdf)
+    bs, weight = bsdf.sample(ctx, si, sample1, sample2, active)
+    return values, pdfs, bs, weight
+
+
+def footprint_texels(bsdf, si, active=True):
+    """``bsdf.footprint_texels`` where it has one, (0, 0) elsewhere."""
+    if has_footprint_texels(bsdf):
+        return bsdf.footprint_texels(si, active)
+    return mi.Float(0.0), mi.Float(0.0)
+
+
+def gap_transmission(bsdf, si, active=True):
+    """``bsdf.gap_transmission`` where it has one, 0 (it blocks) elsewhere."""
+    if has_gap_transmission(bsdf):
+        return bsdf.gap_transmission(si, active)
+    return mi.Float(0.0)
+
+
+def call(bsdf, func, *args, active=True, default=None):
+    """``func(bsdf, *args)`` for the BSDF of each lane where ``active``: ``dr.dispatch``
+    over a ``BSDFPtr`` in JIT variants (once per distinct BSDF; lanes off get zeros, and
+    no BSDF runs for them), a plain call on the one BSDF of scalar variants, which return
+    ``default`` where the lane is off or there is no BSDF (a miss: None)."""
+    if dr.is_jit_v(mi.Float):
+        if active is not True:
+            bsdf = dr.select(active, bsdf, dr.zeros(mi.BSDFPtr))
+        return dr.dispatch(bsdf, func, *args)
+    return func(bsdf, *args) if active and bsdf is not None else default
