@@ -28,6 +28,7 @@ from .footprint_estimator import FootprintEstimator
 from .lobe_calibration import calibrate
 from .lobe_mixture import LobeSamplers
 from .lobes import component_flags, enabled_lobes
+from .parameter_docs import DOCSTRING  # generated from the one parameter table
 from .parameters import (EXPOSED, FLOAT_PARAMETERS, _check_float, cloth_maps, exposure_flags, read_parameters,
                          uv_scales, with_flags_column)
 
@@ -46,9 +47,6 @@ def cloth_label(plugin_id: str, pattern: str) -> str:
     name = plugin_id if plugin_id and plugin_id != "bsdf" else f"cloth {next(_unnamed_cloths)}"
     shown = pattern.replace("\\", "/").rstrip("/").rsplit("/", 1)[-1] or pattern
     return f"{name}, {shown}"
-
-
-from .parameter_docs import DOCSTRING  # noqa: E402  (generated from the parameter table)
 
 
 def make_cloth_class():
