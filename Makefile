@@ -11,7 +11,7 @@ demo: setup
 
 test:
 	@bash scripts/setup.sh test
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n auto --dist loadfile
 
 bench: setup
 	$(PY) bench/benchmark.py --out bench/RESULTS.md
