@@ -983,7 +983,7 @@ def test_footprint_texels_aov_counts_the_cloth_texels():
                    "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 2], target=[0, 0, 0], up=[0, 1, 0]),
                    "film": {"type": "hdrfilm", "width": n, "height": n, "rfilter": {"type": "box"}}},
         "square": {"type": "rectangle", "bsdf": cloth}})
-    tile = mi.load_dict(cloth).tile_w
+    tile = mi.load_dict(cloth).fibre.tile.tile_w
     img = render(scene, 4, 0)  # R, G, B, footprint_u, footprint_v, texels_u, texels_v
     np.testing.assert_allclose(img[2:-2, 2:-2, 5], s_uv * tile / n, rtol=1e-3)
     np.testing.assert_allclose(img[2:-2, 2:-2, 6], s_uv * tile / n, rtol=1e-3)

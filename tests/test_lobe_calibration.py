@@ -112,3 +112,51 @@ def test_share_factors_cut_the_variance_of_footprint_samples(theta):
 def test_calibration_tables_must_match():
     with pytest.raises(ValueError, match="factors of shape"):
         LobeCalibration(np.ones((5, 16)), np.ones((4, 16)))
+
+
+def test_calibrations_are_cached_and_keyed_on_what_they_measure(tmp_path, monkeypatch):
+    """A BSDF loaded again reads its calibration from the cache (the same arrays the
+    measurement gave); another parameter value, other maps or other estimator constants
+    measure anew; a damaged file is measured and written again, with a warning; a spatially
+    varying texture is never cached (its key would need the texture's data)."""
+    from mscloth.bsdf import calibration_cache
+    from mscloth.bsdf.footprint_estimator import FootprintEstimator
+
+    monkeypatch.setenv("MSCLOTH_CACHE", str(tmp_path))
+    folder = tmp_path / calibration_cache.SUBDIR
+    small = dict(TWILL, multiscale=True, resolution=64)
+
+    def files():
+        return sorted(folder.glob("*.npz")) if folder.is_dir() else []
+
+    first = mi.load_dict(small)
+    assert len(files()) == 1
+    calls = []
+    real = calibration_cache.save
+    monkeypatch.setattr(calibration_cache, "save", lambda *a, **k: (calls.append(a[0]), real(*a, **k)))
+    again = mi.load_dict(small)
+    assert not calls  # read, not measured
+    assert np.array_equal(again.fibre.calibration.ratios, first.fibre.calibration.ratios)
+    assert np.array_equal(again.estimator.calibration.ratios, first.estimator.calibration.ratios)
+
+    mi.load_dict(dict(small, specular_albedo=0.4))
+    mi.load_dict(dict(small, pattern="twill-2-1"))
+    monkeypatch.setattr(FootprintEstimator, "DEFENSIVE_COSINE", 0.2)
+    mi.load_dict(small)
+    assert len(calls) == 3 and len(set(calls)) == 3 and len(files()) == 4
+    monkeypatch.undo()
+    monkeypatch.setenv("MSCLOTH_CACHE", str(tmp_path))
+
+    stored = files()[0]
+    for path in files():
+        path.write_bytes(b"not an npz")
+    with pytest.warns(RuntimeWarning, match="ignoring cached calibration"):
+        damaged = mi.load_dict(small)
+    assert np.array_equal(damaged.fibre.calibration.ratios, first.fibre.calibration.ratios)
+    assert stored.exists()
+
+    before = len(files())
+    texels = np.linspace(0.2, 0.4, 4 * 4 * 3).reshape(4, 4, 3)
+    varying = dict(small, specular_albedo={"type": "bitmap", "data": mi.TensorXf(texels), "raw": True})
+    assert mi.load_dict(varying).fibre.calibration is not None
+    assert len(files()) == before

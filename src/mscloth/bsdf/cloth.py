@@ -14,6 +14,7 @@ active when they are defined, so :func:`make_cloth_class` builds one class per v
 """
 from __future__ import annotations
 
+import dataclasses
 import itertools
 
 import drjit as dr
@@ -25,13 +26,17 @@ from .cloth_shading import ClothShading
 from .fibre_bsdf import FibreBSDF, ShadingParameters, TileTables
 from .footprint_data import FootprintData
 from .footprint_estimator import FootprintEstimator
-from .lobe_calibration import calibrate
+from . import calibration_cache
+from .lobe_calibration import LobeCalibration, calibrate
 from .lobe_mixture import LobeSamplers
 from .lobes import component_flags, enabled_lobes
 from .parameter_docs import DOCSTRING  # generated from the one parameter table
-from .parameters import (EXPOSED, FLOAT_PARAMETERS, _check_float, cloth_maps, exposure_flags, read_parameters,
-                         uv_scales, with_flags_column)
+from .parameters import (EXPOSED, FLOAT_PARAMETERS, _check_float, cloth_maps, constant_channels, exposure_flags,
+                         read_parameters, uv_scales, with_flags_column)
 
+
+#: The float parameters shading reads (:class:`.fibre_bsdf.ShadingParameters`).
+SHADING_FLOATS = ("uv_scale", "uv_scale_v", "roughness", "thickness", "sheen_roughness", "sheen_thickness")
 
 #: Numbers cloths that have no id of their own, so that their progress lines differ.
 _unnamed_cloths = itertools.count(1)
@@ -69,6 +74,7 @@ def make_cloth_class():
             # builds again when its roughness changes); everything else shading reads live.
             self.build = p.build
             self._pinned = {}
+            self._maps_key = None  # a hash of the maps, for the calibration's cache key
             uv_scale, uv_scale_v = uv_scales(p, maps)
             # uv_scale_v follows uv_scale at the tile's aspect when it was not given.
             self._uv_aspect = None if (p.uv_scale_v and not p.uv_unit) else uv_scale_v / uv_scale
@@ -132,20 +138,54 @@ def make_cloth_class():
             """Lobe selection matched to the lobes' albedos, and for footprints to the
             footprint mixture's weights, measured on the BSDF as it is now, at the uv scales
             given (JIT variants; scalar variants, for unit tests, keep the uncalibrated
-            proxies)."""
+            proxies). Stored in the cache (:mod:`.calibration_cache`) and read from it when
+            the same BSDF is loaded again."""
             self.fibre.calibration = None
             if self.estimator is not None:
                 self.estimator.calibration = None
-            if dr.is_jit_v(mi.Float):
+            if not dr.is_jit_v(mi.Float):
+                return
+            key = self._calibration_key(uv_scale, uv_scale_v)
+            stored = calibration_cache.load(key) if key else None
+            if stored is not None:
+                point = LobeCalibration(stored["point"])
+                footprint = None
+                if "footprint_ratios" in stored:
+                    footprint = LobeCalibration(stored["footprint_ratios"], stored["footprint_factors"])
+            else:
                 texel_uv = None
                 if self.multiscale:
                     tile = self.fibre.tile
                     texel_uv = (1.0 / (uv_scale * tile.tile_w), 1.0 / (uv_scale_v * tile.tile_h))
                 with dr.suspend_grad():
-                    self.fibre.calibration, footprint_calibration = calibrate(
-                        self, self.fibre.point_proxies, self.estimator, texel_uv)
-                if self.estimator is not None:
-                    self.estimator.calibration = footprint_calibration
+                    point, footprint = calibrate(self, self.fibre.point_proxies, self.estimator, texel_uv)
+                if key:
+                    arrays = {"point": point.albedo_ratios}
+                    if footprint is not None:
+                        arrays.update(footprint_ratios=footprint.albedo_ratios, footprint_factors=footprint.factors)
+                    calibration_cache.save(key, arrays)
+            self.fibre.calibration = point
+            if self.estimator is not None and self.multiscale:
+                self.estimator.calibration = footprint
+
+        def _calibration_key(self, uv_scale, uv_scale_v) -> str | None:
+            """The calibration's cache key, or None where spatially varying textures make
+            it unknowable."""
+            textures = {}
+            for name, texture in self.params.textures.items():
+                if texture.is_spatially_varying():
+                    return None
+                textures[name] = [float(c) for c in constant_channels(texture)]
+            if self._maps_key is None:
+                from ..precompute.tables import table_key
+                self._maps_key = table_key(self.maps, {})
+            tuning = {} if self.estimator is None else {
+                name: getattr(self.estimator, name) for name in FootprintEstimator.TUNING}
+            inputs = {"variant": mi.variant(), "build": dataclasses.asdict(self.build),
+                      "tables": None if self.table_key is None else self.table_key.as_params(),
+                      "params": {name: self._value(name) for name in SHADING_FLOATS},
+                      "textures": textures, "uv": [float(uv_scale), float(uv_scale_v)], "tuning": tuning}
+            return calibration_cache.calibration_key(self._maps_key, inputs)
 
         def _parameter(self, name, value):
             """A float parameter as an evaluated (opaque) Float in JIT variants, as Mitsuba's

@@ -136,6 +136,10 @@ class FootprintEstimator:
     #: grid over the shaded box.
     RESIDUAL_GRID = 2
 
+    #: The tuning constants above (a cached calibration, measured with them, keys on them).
+    TUNING = ("POINT_TEXELS", "FOOTPRINT_TEXELS", "MAX_PROBES", "CELLS", "DEFENSIVE_COSINE", "DEFENSIVE_MIN_SIDE",
+              "CONSISTENT_VISIBILITY_CV", "RESIDUAL_GRID")
+
     def __init__(self, fibre: FibreBSDF):
         self.fibre = fibre
         #: :class:`.lobe_calibration.LobeCalibration` of the footprint mixture's lobe

@@ -246,7 +246,7 @@ def _read_float(props, name, default=None):
     return _check_float(name, props.get(name))
 
 
-def _constant_channels(texture) -> np.ndarray:
+def constant_channels(texture) -> np.ndarray:
     """The three channels of a texture that does not vary in space."""
     value = np.asarray(texture.eval(dr.zeros(mi.SurfaceInteraction3f)), dtype=float).reshape(-1)
     return value[:3] if value.size >= 3 else np.full(3, value[0])
@@ -255,7 +255,7 @@ def _constant_channels(texture) -> np.ndarray:
 def texture_channel_bounds(texture) -> np.ndarray:
     """Per-channel upper bound of a texture's values (exact when not spatially varying)."""
     if not texture.is_spatially_varying():
-        return _constant_channels(texture)
+        return constant_channels(texture)
     try:
         return np.full(3, float(texture.max()))
     except RuntimeError:
@@ -270,7 +270,7 @@ def texture_channel_bounds(texture) -> np.ndarray:
 
 def _texture_min(texture) -> float:
     if not texture.is_spatially_varying():
-        return float(_constant_channels(texture).min())
+        return float(constant_channels(texture).min())
     for key, value in mi.traverse(texture).items():
         if key.endswith("data"):
             return float(np.array(value).min())
