@@ -12,7 +12,6 @@ Calibrations only steer which lobe a sample takes, never the estimate's expectat
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import warnings
 from functools import lru_cache
@@ -75,12 +74,7 @@ def save(key: str, arrays: dict, cache_dir=None) -> None:
     """Store calibration ``key``; a cache that cannot be written only costs time."""
     path = path_of(key, cache_dir)
 
-    def write(f):
-        buffer = io.BytesIO()
-        np.savez(buffer, **arrays)
-        f.write(buffer.getvalue())
-
     try:
-        atomic_write(path, write)
+        atomic_write(path, lambda f: np.savez(f, **arrays))
     except OSError as exc:
         warnings.warn(f"mscloth: cannot write calibration cache {path}: {exc}", RuntimeWarning, stacklevel=3)

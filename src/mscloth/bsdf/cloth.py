@@ -35,8 +35,8 @@ from .parameters import (EXPOSED, FLOAT_PARAMETERS, _check_float, cloth_maps, co
                          read_parameters, uv_scales, with_flags_column)
 
 
-#: The float parameters shading reads (:class:`.fibre_bsdf.ShadingParameters`).
-SHADING_FLOATS = ("uv_scale", "uv_scale_v", "roughness", "thickness", "sheen_roughness", "sheen_thickness")
+#: The float parameters shading reads: the fields of :class:`.fibre_bsdf.ShadingParameters`.
+SHADING_FLOATS = tuple(f.name for f in dataclasses.fields(ShadingParameters) if f.name != "textures")
 
 #: Numbers cloths that have no id of their own, so that their progress lines differ.
 _unnamed_cloths = itertools.count(1)
@@ -78,11 +78,10 @@ def make_cloth_class():
             uv_scale, uv_scale_v = uv_scales(p, maps)
             # uv_scale_v follows uv_scale at the tile's aspect when it was not given.
             self._uv_aspect = None if (p.uv_scale_v and not p.uv_unit) else uv_scale_v / uv_scale
+            given = dict(uv_scale=uv_scale, uv_scale_v=uv_scale_v)
             self.params = ShadingParameters(
-                **{name: self._parameter(name, value) for name, value in (
-                    ("uv_scale", uv_scale), ("uv_scale_v", uv_scale_v), ("roughness", p.roughness),
-                    ("thickness", p.thickness), ("sheen_roughness", p.sheen_roughness),
-                    ("sheen_thickness", p.sheen_thickness))},
+                **{name: self._parameter(name, given[name] if name in given else getattr(p, name))
+                   for name in SHADING_FLOATS},
                 textures=p.textures)
             self.fibre = FibreBSDF(self.params, TileTables.from_maps(maps), p.build.visibility, p.build.parallax)
             self.multiscale = p.build.multiscale
@@ -165,7 +164,7 @@ def make_cloth_class():
                         arrays.update(footprint_ratios=footprint.albedo_ratios, footprint_factors=footprint.factors)
                     calibration_cache.save(key, arrays)
             self.fibre.calibration = point
-            if self.estimator is not None and self.multiscale:
+            if self.estimator is not None:
                 self.estimator.calibration = footprint
 
         def _calibration_key(self, uv_scale, uv_scale_v) -> str | None:

@@ -19,7 +19,7 @@ import mitsuba as mi
 
 from ..scattering import sggx, spongecake
 from .fibre_bsdf import FibreBSDF, edges_in_texels
-from .lanes import logical_not, pick
+from ..lanes import logical_not, pick
 from .lobe_mixture import lobe_weights
 from .lobes import DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN, SPECULAR_REFLECTION, SPECULAR_TRANSMISSION
 from .sat_queries import RectQuery, hemisphere_bins, round_box

@@ -14,7 +14,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ..scattering import sheen, spongecake
-from .lanes import logical_not
+from ..lanes import logical_not
 from .lobes import DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN, SPECULAR_REFLECTION, SPECULAR_TRANSMISSION
 from .shading_state import LobeAlbedos, max_channel
 

@@ -11,6 +11,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ..errors import ParameterError
+from ..lanes import logical_not
 from . import bsdf_contract as contract
 from . import footprint as fp
 from . import gap_shadows
@@ -195,10 +196,6 @@ def any_or_true(mask) -> bool:
     return dr.is_jit_v(mi.Float) or bool(mask)
 
 
-def _not(mask):
-    """Logical not of a mask, also for the Python bools of scalar variants (where ~ is wrong)."""
-    return mask ^ True
-
 
 def spec_fma(a, b, c):
     """a * b + c: a Mueller-matrix product in polarized variants, a fused multiply-add else."""
@@ -267,9 +264,9 @@ def make_clothpath_class():
                     through = gap_shadows.shadow_transmittance(scene, si, ds.p, cone_width, cone_spread,
                                                                crossing, limit)
                     em_weight = em_weight * dr.select(crossing, through, 1.0)
-                    active &= dr.select(crossing, through > 0.0, _not(occluded))
+                    active &= dr.select(crossing, through > 0.0, logical_not(occluded))
                 else:
-                    active &= _not(scene.ray_test(si.spawn_ray_to(ds.p), active))
+                    active &= logical_not(scene.ray_test(si.spawn_ray_to(ds.p), active))
             return ds, em_weight, active, si.to_local(ds.d)
 
         def _trace(self, scene, sampler, ray_d, has_diff, width0, spread0, active):
@@ -347,11 +344,11 @@ def make_clothpath_class():
                 if any_or_true(si.emitter(scene) is not None):
                     ds = mi.DirectionSample3f(scene, si=si, ref=s.prev_si)
                     em_pdf = mi.Float(0.0)
-                    if any_or_true(_not(s.prev_bsdf_delta)):  # (scalar: none after a delta bounce)
+                    if any_or_true(logical_not(s.prev_bsdf_delta)):  # (scalar: none after a delta bounce)
                         if all_emitters:  # no emitter selection: the emitter's own pdf
-                            em_pdf = ds.emitter.pdf_direction(s.prev_si, ds, _not(s.prev_bsdf_delta))
+                            em_pdf = ds.emitter.pdf_direction(s.prev_si, ds, logical_not(s.prev_bsdf_delta))
                         else:
-                            em_pdf = scene.pdf_emitter_direction(s.prev_si, ds, _not(s.prev_bsdf_delta))
+                            em_pdf = scene.pdf_emitter_direction(s.prev_si, ds, logical_not(s.prev_bsdf_delta))
                         if gaps:
                             # prev_si is the vertex before the gap crossings (if any); past
                             # MAX_CROSSINGS of them its shadow rays do not reach the emitter.
@@ -436,7 +433,7 @@ def make_clothpath_class():
                 # ------- Update loop variables based on current interaction -----
                 s.throughput = s.throughput * bsdf_weight
                 s.eta = s.eta * bsdf_sample.eta
-                s.valid_ray = s.valid_ray | (s.active & si.is_valid() & _not(
+                s.valid_ray = s.valid_ray | (s.active & si.is_valid() & logical_not(
                     mi.has_flag(bsdf_sample.sampled_type, mi.BSDFFlags.Null)))
                 sampled_delta = mi.has_flag(bsdf_sample.sampled_type, mi.BSDFFlags.Delta)
                 # A crossing through the gap of cloth is a null interface to MIS: shadow rays
@@ -464,7 +461,7 @@ def make_clothpath_class():
                 rr_continue = sampler.next_1d() < rr_prob
                 s.throughput = dr.select(rr_active, s.throughput * dr.rcp(dr.detach(rr_prob)),
                                          s.throughput)
-                s.active = active_next & (_not(rr_active) | rr_continue) & (throughput_max != 0.0)
+                s.active = active_next & (logical_not(rr_active) | rr_continue) & (throughput_max != 0.0)
 
                 s.pi = scene.ray_intersect_preliminary(s.ray, coherent=False, active=s.active)
                 return sampler, s

@@ -21,6 +21,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from ..lanes import logical_not
 from . import bsdf_contract as contract
 from . import footprint as fp
 
@@ -55,10 +56,6 @@ def is_gap_bsdf(bsdf, found) -> mi.Bool:
     return on_gap
 
 
-def _not(mask):
-    """Logical not of a mask, also for the Python bools of scalar variants."""
-    return mask ^ True
-
 
 def shadow_transmittance(scene, si, target, cone_width, cone_spread, active,
                          max_crossings=MAX_CROSSINGS):
@@ -75,7 +72,7 @@ def shadow_transmittance(scene, si, target, cone_width, cone_spread, active,
         hit = going & hit_si.is_valid()
         crossings = dr.select(hit, crossings + 1, crossings)
         blocked = hit & (crossings > limit)
-        hit &= _not(blocked)
+        hit &= logical_not(blocked)
         d = dr.normalize(ray.d)
         hit_si.wi = hit_si.to_local(-d)
         width = fp.cone_width(cone_width, cone_spread, travelled + hit_si.t)

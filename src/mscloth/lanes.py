@@ -1,5 +1,6 @@
-"""Per-lane helpers shared by the ``cloth`` BSDF and its footprint estimator, in every
-variant (masks in JIT variants, Python bools and floats in scalar ones)."""
+"""Per-lane helpers shared by the ``cloth`` BSDF, its footprint estimator and the
+integrators, in every variant (masks in JIT variants, Python bools and floats in scalar
+ones)."""
 from __future__ import annotations
 
 import drjit as dr
