@@ -62,6 +62,31 @@ def test_fabric_sets_defaults_that_parameters_override():
     assert b.maps.meta["fabric"] == "denim"
 
 
+def test_cloth_constructor_loads_no_scene_of_its_own(monkeypatch):
+    """A ``cloth`` is built on one of the parallel loader's threads; a nested
+    ``mi.load_dict`` there corrupts the file resolver that ``sunsky`` or a mesh reads at
+    the same moment (Mitsuba 3.9.1: 1 scene load in 10-20 failed with std::bad_alloc). A
+    preset's colours are made through the plugin manager instead."""
+    real, depth, nested = mi.load_dict, [0], []
+
+    def counting(scene, *args, **kwargs):
+        if depth[0]:
+            nested.append(scene)
+        depth[0] += 1
+        try:
+            return real(scene, *args, **kwargs)
+        finally:
+            depth[0] -= 1
+
+    monkeypatch.setattr(mi, "load_dict", counting)
+    b = mi.load_dict({"type": "cloth", "fabric": "wool-gabardine", "multiscale": False, "visibility": False})
+    assert nested == []
+    # and the preset's sheen colour still arrives as the scene parser would make it
+    expected = real(fabric("wool-gabardine").bsdf_parameters()["sheen_color"])
+    si = dr.zeros(mi.SurfaceInteraction3f)
+    assert dr.allclose(b.params.textures["sheen_color"].eval(si), expected.eval(si))
+
+
 def test_unknown_fabric_names_the_closest():
     from mscloth.loading import load_dict
     with pytest.raises(ParameterError, match="did you mean 'silk-charmeuse'"):

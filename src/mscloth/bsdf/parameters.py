@@ -278,10 +278,21 @@ def _texture_min(texture) -> float:
 
 
 def _preset_texture(value):
-    """A preset's spectrum value (a float or an ``rgb`` dictionary) as a texture."""
+    """A preset's spectrum value (a float or an ``rgb`` dictionary) as a texture, made as
+    the scene parser makes one (``srgb`` for an RGB reflectance, ``uniform`` for a float).
+    Through the plugin manager, not ``mi.load_dict``: this runs inside the ``cloth``
+    constructor, on one of the parallel loader's threads, and a nested ``mi.load_dict``
+    there (Mitsuba 3.9.1) corrupts the file resolver other plugins (``sunsky``, meshes)
+    are reading at that moment (docs/decisions.md, "No scene loading inside a plugin")."""
     if isinstance(value, dict):
-        return mi.load_dict(value)
-    return mi.load_dict({"type": "uniform", "value": float(value)})
+        if value.get("type") != "rgb" or set(value) != {"type", "value"}:
+            raise ParameterError(f"cloth: a preset colour must be {{'type': 'rgb', 'value': [r, g, b]}}, got {value!r}")
+        props = mi.Properties("srgb")
+        props["color"] = mi.ScalarColor3f(*(float(c) for c in value["value"]))
+    else:
+        props = mi.Properties("uniform")
+        props["value"] = float(value)
+    return mi.PluginManager.instance().create_object(props)
 
 
 def read_parameters(props) -> ClothParameters:

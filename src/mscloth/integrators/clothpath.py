@@ -189,6 +189,21 @@ def _is_uniform(emitter):
     return emitter is not None and emitter.class_name() == "ConstantBackgroundEmitter"
 
 
+def canonical_emitter_order(emitters) -> list:
+    """``emitters`` in an order that depends on the scene alone: by id (the shape's, for an
+    area light), then kind and bounds. Mitsuba lists a scene's emitters in the order its
+    parallel loader finished them, which varies from load to load; with ``all`` each
+    emitter draws its own sample numbers, so that order would change the image a fixed
+    seed gives."""
+    def key(emitter):
+        shape = emitter.get_shape()
+        bbox = emitter.bbox()
+        # (rounded: transforms read back from XML differ in their last bits)
+        bounds = tuple(round(float(v), 6) for v in (*bbox.min, *bbox.max)) if bbox.valid() else ()
+        return ((shape.id() if shape is not None else emitter.id()), emitter.class_name(), bounds)
+    return sorted(emitters, key=key)
+
+
 def any_or_true(mask) -> bool:
     """``dr::any_or<true>`` of Mitsuba's C++: JIT variants run a masked branch on all lanes;
     scalar variants skip it where their one lane is off (there it may call methods of a None
@@ -278,7 +293,7 @@ def make_clothpath_class():
             o_x, d_x, o_y, d_y = ray_d.o_x, ray_d.d_x, ray_d.o_y, ray_d.d_y  # loop-invariant
             footprint_aovs = self.footprint_aovs
             scattered_footprints = self.scattered_footprints
-            emitters = list(scene.emitters())
+            emitters = canonical_emitter_order(scene.emitters())
             # `all`: a uniform environment is left to BSDF sampling (MIS weight 1 where a
             # ray escapes); sampling it uniformly over the sphere only adds noise.
             env_by_bsdf = self.emitter_sampling == "all" and _is_uniform(scene.environment())
