@@ -458,3 +458,31 @@ def test_bad_input_gives_one_line_and_nonzero_exit(args, message, tmp_path):
     assert result.returncode != 0
     lines = [line for line in result.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith("mscloth: error:") and message in lines[0], result.stderr
+
+
+def test_convergence_curve_records_the_count_the_sampler_took(capfd):
+    """Stratified samplers round some counts up (multijitter: 32 -> 35); the curve's time
+    and error are at the count taken, and its rounding warning is not printed per repeat."""
+    import mitsuba as mi
+
+    scene = mi.load_dict({"type": "scene", "integrator": {"type": "path"}, "shape": {"type": "sphere"},
+                          "sensor": {"type": "perspective", "sampler": {"type": "multijitter"},
+                                     "film": {"type": "hdrfilm", "width": 8, "height": 8}}})
+    zero = {g: 0.0 for g in REGIONS}
+    points = compare.convergence_curve(scene, "test", 1, 32, 1e9, lambda image: {"relmse": zero, "flip": zero},
+                                       quiet=True, repeats=2)
+    assert [p["spp"] for p in points] == [1, 2, 4, 8, 16, 35]
+    assert "rounded" not in capfd.readouterr().err
+
+
+def test_builtin_scenes_sample_pixels_with_a_stratified_sampler_that_can_be_changed():
+    from mscloth.evaluation.renders import scene_dict
+    from mscloth.scenes.builtin import SCENES, builtin_scene
+    from mscloth.scenes.pixel_sampler import DEFAULT_PIXEL_SAMPLER, set_pixel_sampler
+
+    assert DEFAULT_PIXEL_SAMPLER == "multijitter"
+    for name in SCENES:
+        assert builtin_scene(name, 16, 9)["sensor"]["sampler"]["type"] == DEFAULT_PIXEL_SAMPLER
+    assert scene_dict("satin", 16, 9, True, sampler="independent")["sensor"]["sampler"] == {"type": "independent"}
+    with pytest.raises(ClothError, match="unknown sampler 'sobol': expected one of multijitter, independent"):
+        set_pixel_sampler(builtin_scene("satin", 16, 9), "sobol")

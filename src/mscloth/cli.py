@@ -12,6 +12,7 @@ from pathlib import Path
 
 from . import __version__, setup_mitsuba
 from .errors import ClothError, ResolutionError
+from .scenes.pixel_sampler import DEFAULT_PIXEL_SAMPLER, PIXEL_SAMPLERS
 
 
 def _positive_int(low: int, high: int):
@@ -135,6 +136,7 @@ def cmd_render(args) -> int:
     from .loading import load_dict
     from .render import KernelCompilation, render_progressive, throughput_text, write_images
     from .scenes.builtin import SCENES, builtin_scene
+    from .scenes.pixel_sampler import set_pixel_sampler
 
     out = Path(args.out)
     if out.suffix.lower() != ".exr":
@@ -143,6 +145,8 @@ def cmd_render(args) -> int:
         raise ClothError(f"unknown scene {args.scene!r}: expected one of {', '.join(SCENES)} or a .xml file")
     if args.scene not in SCENES and not Path(args.scene).is_file():
         raise ClothError(f"scene file {args.scene} does not exist")
+    if args.sampler and args.scene not in SCENES:
+        raise ClothError("--sampler applies to the built-in scenes; a scene file names its own sampler")
     if not args.force:
         existing = [p for p in (out, out.with_suffix(".png")) if p.exists()]
         if existing:
@@ -157,7 +161,10 @@ def cmd_render(args) -> int:
     loading_started = time.perf_counter()
     if args.scene in SCENES:
         w, h = args.res or ((480, 360) if args.scene == "swatch" else (512, 288))
-        scene = load_dict(builtin_scene(args.scene, w, h, **options))
+        scene_dict = builtin_scene(args.scene, w, h, **options)
+        if args.sampler:
+            set_pixel_sampler(scene_dict, args.sampler)
+        scene = load_dict(scene_dict)
     else:
         scene = _load_scene_file(Path(args.scene), args.res)
     loading_seconds = time.perf_counter() - loading_started
@@ -276,7 +283,7 @@ def cmd_compare(args) -> int:
     if args.variant:
         setup_mitsuba(args.variant)
     run_compare(args.scene, w, h, budget=budget, reference_spp=reference_spp, out_dir=out,
-                json_path=Path(args.json) if args.json else None)
+                json_path=Path(args.json) if args.json else None, sampler=args.sampler)
     return 0
 
 
@@ -372,6 +379,8 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
     render.add_argument("--out", default="out/render.exr", help="output EXR; a PNG is written beside it")
     render.add_argument("--force", action="store_true", help="overwrite an existing EXR or PNG")
+    render.add_argument("--sampler", default=None, choices=PIXEL_SAMPLERS,
+                        help=f"built-in scenes: the pixel sampler (default {DEFAULT_PIXEL_SAMPLER})")
     render.set_defaults(func=cmd_render)
 
     scene = sub.add_parser("scene", help="write a built-in scene as Mitsuba XML to start from")
@@ -410,6 +419,8 @@ def build_parser() -> argparse.ArgumentParser:
                                                      "its report is replaced on each run")
     compare.add_argument("--reference-spp", default="1024", help="spp of the brute-force reference (default 1024)")
     compare.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
+    compare.add_argument("--sampler", default=None, choices=PIXEL_SAMPLERS,
+                         help=f"the pixel sampler of both methods (default {DEFAULT_PIXEL_SAMPLER})")
     compare.set_defaults(func=cmd_compare)
 
     cache = sub.add_parser("cache", help="what the cache ($MSCLOTH_CACHE or ~/.cache/mscloth) holds; --clear empties it")

@@ -71,12 +71,13 @@ def convergence_curve(scene, label: str, seed0: int, max_spp: int, budget: float
             again = timed_render(scene, spp, seed0 + k).seconds
             spent += again
             seconds = min(seconds, again)
-        point = {"spp": spp, "seed": r.seed, "seconds": seconds, "compile_seconds": r.compile_seconds,
+        # (r.spp: the count the sampler took, the curve's time and error are at it)
+        point = {"spp": r.spp, "seed": r.seed, "seconds": seconds, "compile_seconds": r.compile_seconds,
                  **evaluate(r.image), "image": r.image}
         points.append(point)
         if not quiet:
             errs = "  ".join(f"{g} {point['relmse'][g]:.3g}" for g in REGIONS)
-            print(f"  {label:12s} {spp:5d} spp  {seconds:7.3f} s (+{r.compile_seconds:.1f} s compile)  "
+            print(f"  {label:12s} {r.spp:5d} spp  {seconds:7.3f} s (+{r.compile_seconds:.1f} s compile)  "
                   f"relMSE {errs}   [{spent:.2f}/{budget:.2f} s]", flush=True)
         spp, k = spp * 2, k + 1
     return points
@@ -158,8 +159,10 @@ def summary_lines(result: dict, spp_multiscale: int, spp_bruteforce: int) -> lis
 
 def run_compare(name: str, width: int, height: int, budget: float = 60.0, reference_spp: int = 1024,
                 out_dir: Path | None = None, json_path: Path | None = None, spp_multiscale: int = 16,
-                quiet: bool = False) -> dict:
-    """Run the whole comparison; write the report (and JSON); return the JSON dictionary."""
+                quiet: bool = False, sampler: str | None = None) -> dict:
+    """Run the whole comparison; write the report (and JSON); return the JSON dictionary.
+    ``sampler``: both methods' pixel sampler (default: the scene's own,
+    :data:`.scenes.pixel_sampler.DEFAULT_PIXEL_SAMPLER`)."""
     from ..scenes.builtin import SCENES
 
     if name not in SCENES:
@@ -203,7 +206,7 @@ def run_compare(name: str, width: int, height: int, budget: float = 60.0, refere
                 "flip": {g: float(flip[masks[g]].mean()) for g in REGIONS}}
 
     say(f"multi-scale: 1 .. {spp_multiscale} spp, at most {budget / 2:g} s")
-    scene = load_dict(scene_dict(name, width, height, multiscale=True))
+    scene = load_dict(scene_dict(name, width, height, multiscale=True, sampler=sampler))
     points_ms = convergence_curve(scene, "multi-scale", MULTISCALE_SEED, spp_multiscale, budget / 2, evaluate,
                                   quiet=quiet)
     del scene
@@ -211,7 +214,7 @@ def run_compare(name: str, width: int, height: int, budget: float = 60.0, refere
     bf_budget = budget - sum(p["seconds"] for p in points_ms)
     bf_max = max(2, reference_spp // 4)
     say(f"brute force: 1 .. {bf_max} spp, at most {max(bf_budget, 0):.3g} s")
-    scene = load_dict(scene_dict(name, width, height, multiscale=False))
+    scene = load_dict(scene_dict(name, width, height, multiscale=False, sampler=sampler))
     points_bf = convergence_curve(scene, "brute force", BRUTEFORCE_SEED, bf_max, bf_budget, evaluate, quiet=quiet)
     del scene
     gc.collect()

@@ -2,6 +2,7 @@
 timed ``mi.render`` of it (see :mod:`.compare` for what the time leaves out)."""
 from __future__ import annotations
 
+import contextlib
 import gc
 import time
 from dataclasses import dataclass, field
@@ -16,19 +17,23 @@ MULTISCALE_SEED = 10_000
 BRUTEFORCE_SEED = 20_000
 
 
-def scene_dict(name: str, width: int, height: int, multiscale: bool) -> dict:
-    """A built-in scene's dictionary; brute force (``multiscale=False``) differs only in its cloth BSDFs."""
+def scene_dict(name: str, width: int, height: int, multiscale: bool, sampler: str | None = None) -> dict:
+    """A built-in scene's dictionary; brute force (``multiscale=False``) differs only in its
+    cloth BSDFs. ``sampler``: the pixel sampler (default: the scene's own)."""
     from ..scenes.builtin import builtin_scene, set_cloth_parameters
+    from ..scenes.pixel_sampler import set_pixel_sampler
 
     scene = builtin_scene(name, width, height)
     if set_cloth_parameters(scene, multiscale=multiscale) == 0:
         raise ClothError(f"scene {name!r} has no cloth BSDF to compare")
+    if sampler is not None:
+        set_pixel_sampler(scene, sampler)
     return scene
 
 
 @dataclass
 class Render:
-    spp: int
+    spp: int                # the count the sampler took (stratified ones round some up)
     seed: int
     seconds: float          # wall time minus JIT compilation
     compile_seconds: float  # JIT compilation during the call
@@ -36,15 +41,32 @@ class Render:
 
 
 def timed_render(scene, spp: int, seed: int) -> Render:
-    """One ``mi.render`` read back to NumPy; time without the kernel compilation it triggered."""
+    """One ``mi.render`` read back to NumPy; time without the kernel compilation it triggered.
+    A stratified sampler may take more than ``spp`` samples (multijitter: 32 -> 35); the
+    result records the count taken, and Mitsuba's warning about it is not printed."""
     import mitsuba as mi
 
     from ..render import KernelCompilation
 
     gc.collect()  # see render.render_progressive: no plugin freed mid-trace
-    with KernelCompilation() as compiling:
+    with KernelCompilation() as compiling, _mitsuba_errors_only():
         start = time.perf_counter()
         image = np.array(mi.render(scene, spp=spp, seed=seed))[..., :3]
         wall = time.perf_counter() - start
     compile_s = min(compiling.seconds, wall)
-    return Render(spp, seed, max(wall - compile_s, 1e-6), compile_s, image.astype(np.float32))
+    taken = int(scene.sensors()[0].sampler().sample_count()) if scene.sensors() else spp
+    return Render(taken, seed, max(wall - compile_s, 1e-6), compile_s, image.astype(np.float32))
+
+
+@contextlib.contextmanager
+def _mitsuba_errors_only():
+    """Mitsuba's log at errors only within the block."""
+    import mitsuba as mi
+
+    logger = mi.logger()
+    level = logger.log_level()
+    logger.set_log_level(mi.LogLevel.Error)
+    try:
+        yield
+    finally:
+        logger.set_log_level(level)

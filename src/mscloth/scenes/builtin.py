@@ -14,6 +14,7 @@ from pathlib import Path
 import mitsuba as mi
 
 from ..errors import ClothError
+from .pixel_sampler import sampler_dict
 from .drape import drape_ply
 from .swatch import swatch_scene
 
@@ -41,7 +42,7 @@ def _base(width: int, height: int, origin, target, fov: float, sun_direction, ma
                    "to_world": T().look_at(origin=origin, target=target, up=[0, 1, 0]),
                    "film": {"type": "hdrfilm", "width": width, "height": height,
                             "rfilter": {"type": "box"}},
-                   "sampler": {"type": "independent"}},
+                   "sampler": sampler_dict()},
         "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [0.5, 0.58, 0.72]}},
         "sun": {"type": "directional", "direction": list(sun_direction),
                 "irradiance": {"type": "rgb", "value": [3.0, 2.8, 2.5]}},

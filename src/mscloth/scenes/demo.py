@@ -7,6 +7,8 @@ import os
 
 import mitsuba as mi
 
+from .pixel_sampler import sampler_dict
+
 #: The demo's fabrics, left and right.
 DEMO_FABRICS = ("silk-charmeuse", "denim")
 
@@ -28,7 +30,7 @@ def demo_scene(resolution: int = 512, max_depth: int = 8, mesh_dir: str | os.Pat
                    "to_world": T().look_at(origin=[0.0, 0.5, 0.82], target=[0.0, 0.09, 0.0], up=[0, 1, 0]),
                    "film": {"type": "hdrfilm", "width": resolution, "height": resolution,
                             "rfilter": {"type": "box"}},
-                   "sampler": {"type": "independent"}},
+                   "sampler": sampler_dict()},
         "table": {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90) @ T().scale(6.0),
                   "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.28, 0.28, 0.27]}}},
     }
@@ -55,7 +57,7 @@ def cost_scene(resolution: int = 512, max_depth: int = 8) -> dict:
             "to_world": T().look_at(origin=[0.0, 1.15, 4.2], target=[0.0, 0.62, 0.0], up=[0, 1, 0]),
             "film": {"type": "hdrfilm", "width": resolution, "height": resolution,
                      "rfilter": {"type": "box"}},
-            "sampler": {"type": "independent"},
+            "sampler": sampler_dict(),
         },
         "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [0.55, 0.62, 0.75]}},
         "sun": {"type": "directional", "direction": [0.55, -0.45, 0.7],

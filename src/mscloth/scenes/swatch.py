@@ -15,6 +15,7 @@ from pathlib import Path
 import mitsuba as mi
 
 from ..errors import ClothError
+from .pixel_sampler import sampler_dict
 
 #: Sheet side and the ball's radius, metres.
 SWATCH_SIZE, FORM_RADIUS = 0.5, 0.12
@@ -96,7 +97,7 @@ def swatch_scene(width: int = 480, height: int = 360, fabric: str = "silk-charme
                    "to_world": T().look_at(origin=origin, target=target, up=[0, 1, 0]),
                    "film": {"type": "hdrfilm", "width": width, "height": height,
                             "rfilter": {"type": "box"}},
-                   "sampler": {"type": "independent"}},
+                   "sampler": sampler_dict()},
         "table": {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90) @ T().scale(6.0),
                   "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.28, 0.28, 0.27]}}},
         # The rounded form under the cloth: seen through sheer fabrics and through gaps.

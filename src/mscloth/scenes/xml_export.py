@@ -11,7 +11,8 @@ from ..errors import ClothError
 #: Plugin type -> XML tag.
 CATEGORY = {
     "clothpath": "integrator", "path": "integrator",
-    "perspective": "sensor", "hdrfilm": "film", "independent": "sampler", "box": "rfilter",
+    "perspective": "sensor", "hdrfilm": "film", "independent": "sampler", "multijitter": "sampler", "stratified": "sampler",
+    "ldsampler": "sampler", "orthogonal": "sampler", "box": "rfilter",
     "constant": "emitter", "directional": "emitter", "area": "emitter", "sunsky": "emitter",
     "rectangle": "shape", "sphere": "shape", "ply": "shape", "obj": "shape", "cylinder": "shape",
     "cloth": "bsdf", "diffuse": "bsdf", "principled": "bsdf", "roughconductor": "bsdf",
