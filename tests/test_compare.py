@@ -334,7 +334,7 @@ def test_compare_sphere_writes_json_for_three_regions_and_the_report(compared):
     assert result.returncode == 0, result.stderr[-3000:]
     assert "speed-up" in result.stdout and "reference" in result.stderr  # progress shown
     data = json.loads((root / "figures.json").read_text())
-    assert data["scene"] == "sphere" and data["resolution"] == [48, 27]
+    assert data["scene"] == "sphere" and data["resolution"] == [48, 27] and data["sampler"] == "multijitter"
     for g in REGIONS:
         region = data[g]
         for key in RESULT_KEYS:

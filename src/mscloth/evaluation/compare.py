@@ -164,6 +164,7 @@ def run_compare(name: str, width: int, height: int, budget: float = 60.0, refere
     ``sampler``: both methods' pixel sampler (default: the scene's own,
     :data:`.scenes.pixel_sampler.DEFAULT_PIXEL_SAMPLER`)."""
     from ..scenes.builtin import SCENES
+    from ..scenes.pixel_sampler import DEFAULT_PIXEL_SAMPLER
 
     if name not in SCENES:
         raise ClothError(f"unknown scene {name!r}: expected one of {', '.join(SCENES)}")
@@ -187,7 +188,7 @@ def run_compare(name: str, width: int, height: int, budget: float = 60.0, refere
 
     say = (lambda *a: None) if quiet else (lambda *a: print(*a, flush=True))
     say(f"mscloth compare: {name}, {width}x{height}, budget {budget:g} s, reference {reference_spp} spp, "
-        f"variant {variant}")
+        f"sampler {sampler or DEFAULT_PIXEL_SAMPLER}, variant {variant}")
     started = time.perf_counter()
 
     depth, cloth = depth_and_cloth(name, width, height)
@@ -226,6 +227,7 @@ def run_compare(name: str, width: int, height: int, budget: float = 60.0, refere
         "reference_spp": reference_spp,
         "reference_cached": cached,
         "budget_seconds": budget,
+        "sampler": sampler or DEFAULT_PIXEL_SAMPLER,
         "variant": variant,
         "mscloth_version": __version__,
         "machine": f"{platform.machine()}, {os.cpu_count()} cores",
