@@ -124,7 +124,7 @@ def test_region_figures_give_the_exact_ratio_on_c_over_t_curves():
                                                   {g: 1e-9 for g in REGIONS}]
     ms = _synthetic_points(ms_t, ms_err, [1, 2, 4, 8, 16, 32])
     floor = {g: 0.0 for g in REGIONS}
-    figures, ms_index, bf_index = compare._region_figures(ms, bf, 16, floor)
+    figures, ms_index, bf_index = compare.region_figures(ms, bf, 16, floor)
     assert ms_index == 4 and bf_t[bf_index] == 0.08  # closest to 0.1 s in log time
     for g in REGIONS:
         assert figures[g]["speedup"] == pytest.approx(wanted[g], rel=1e-9)
@@ -184,7 +184,7 @@ def _synthetic_result(w=40, h=24):
     bf_t = [0.01 * 2 ** k for k in range(5)]
     bf = _synthetic_points(bf_t, [{g: 0.01 / t for g in REGIONS} for t in bf_t], [1, 2, 4, 8, 16])
     ms = _synthetic_points([0.05, 0.1], [{g: 0.2 for g in REGIONS}, {g: 0.05 for g in REGIONS}], [1, 2])
-    figures, _, _ = compare._region_figures(ms, bf, 16, {g: 0.001 for g in REGIONS})
+    figures, _, _ = compare.region_figures(ms, bf, 16, {g: 0.001 for g in REGIONS})
     result = {"scene": "synthetic", "resolution": [w, h], "reference_spp": 64, "budget_seconds": 1.0,
               "variant": "none", "mscloth_version": mscloth.__version__, "machine": "test", **figures,
               "regions": {"method": info["method"], "distance_thresholds": info["thresholds"],
@@ -254,7 +254,7 @@ def _narrow_result():
           for i, t in enumerate(bf_t)]
     ms = [{"spp": 2 ** i, "seconds": t, "compile_seconds": 0.0, "seed": i, "relmse": {g: e for g in REGIONS},
            "flip": {g: f for g in REGIONS}} for i, (t, e, f) in enumerate(zip(ms_t, (0.05, 0.03), (0.3, 0.25)))]
-    figures, _, _ = compare._region_figures(ms, bf, 2, {g: 0.02 for g in REGIONS})
+    figures, _, _ = compare.region_figures(ms, bf, 2, {g: 0.02 for g in REGIONS})
     result.update(figures)
     return result
 

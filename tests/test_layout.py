@@ -1,6 +1,7 @@
 """The package's layout, read from its sources' import statements (top-level and inside
 functions alike): no import cycles between mscloth's modules, the renderer never reaches the
-evaluation, and only the evaluation imports its optional extra (matplotlib, FLIP)."""
+evaluation, and only the evaluation imports its optional extra (matplotlib, FLIP). And the
+tests use mscloth through public names only (no ``obj._private``)."""
 import ast
 from pathlib import Path
 
@@ -8,9 +9,12 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 
 #: The renderer: none of its modules may import mscloth.evaluation, directly or through others.
 RENDERER = ("bsdf", "maps", "precompute", "patterns", "scattering", "integrators")
+#: The floors of the pipeline, in order (docs/architecture.md): each reaches only those before it.
+FLOORS = ("patterns", "maps", "precompute", "bsdf", "integrators")
+#: The floors below the renderer (NumPy only): none of their modules reaches Mitsuba or Dr.Jit.
+NO_RENDERER = ("patterns", "maps", "precompute")
 #: Third-party modules of the ``evaluation`` extra (pyproject.toml).
 EVALUATION_EXTRA = ("matplotlib", "flip_evaluator")
-#: Cycles there already are, in code this change leaves alone; a new one fails the test.
 #: Cycles tolerated for now (none): a new one fails the test.
 KNOWN_CYCLES = []
 
@@ -125,7 +129,59 @@ def test_the_renderer_never_reaches_the_evaluation():
             assert not reached, f"{name} imports {sorted(reached)}"
 
 
+def test_each_floor_reaches_only_the_floors_before_it():
+    graph, _ = import_graph()
+
+    def floor(module):
+        package = (module.split(".") + [""])[1]
+        return FLOORS.index(package) if package in FLOORS else None
+
+    for name in graph:
+        if floor(name) is not None:
+            above = sorted(m for m in reachable(graph, name) if (floor(m) or 0) > floor(name))
+            assert not above, f"{name} ({FLOORS[floor(name)]}) reaches {above}"
+
+
+def test_the_lower_floors_need_no_renderer():
+    """patterns, maps and precompute (and the fibre NDF precompute shares with shading) run
+    on NumPy alone: nothing they import, directly or through others, imports Mitsuba or Dr.Jit."""
+    graph, third_party = import_graph()
+    for name in graph:
+        if (name.split(".") + [""])[1] in NO_RENDERER or name == "mscloth.scattering.fibre_ndf":
+            renderer = {m for m in reachable(graph, name) | {name} if third_party[m] & {"mitsuba", "drjit"}}
+            assert not renderer, f"{name} reaches Mitsuba or Dr.Jit through {sorted(renderer)}"
+
+
 def test_only_the_evaluation_imports_its_optional_extra():
     graph, third_party = import_graph()
     users = {name for name, modules in third_party.items() if modules & set(EVALUATION_EXTRA)}
     assert users and all(name.startswith("mscloth.evaluation.") for name in users), users
+
+
+def private_uses(path: Path) -> list[str]:
+    """``line: name`` for each underscored attribute read (``x._name``) and each underscored
+    name imported (``from m import _name``) in ``path``; dunders and the package's private
+    modules (``mscloth.precompute._march``, whose public functions tests may import) aside."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        names = []
+        if isinstance(node, ast.Attribute):
+            names = [node.attr]
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            names = [a.name for a in node.names
+                     if not (SRC / Path(*node.module.split("."), a.name + ".py")).is_file()]
+        found += [f"{node.lineno}: {n}" for n in names if n.startswith("_") and not n.startswith("__")]
+    return found
+
+
+def test_tests_use_public_names_only(tmp_path):
+    """No test calls an underscored method of the BSDF, or any other private name: what a
+    test needs is public (fault injection through ``monkeypatch.setattr(module, "_name", ...)``
+    aside, which names it in a string)."""
+    sample = tmp_path / "test_sample.py"
+    sample.write_text("from mscloth.precompute import _march\nfrom mscloth.precompute._march import _x, y\n"
+                      "bsdf.__class__\nbsdf._calibrate()\n")
+    assert private_uses(sample) == ["2: _x", "4: _calibrate"]
+    tests = Path(__file__).resolve().parent
+    bad = {path.name: uses for path in sorted(tests.glob("*.py")) if (uses := private_uses(path))}
+    assert not bad, bad

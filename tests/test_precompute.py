@@ -21,7 +21,7 @@ from mscloth.precompute.direction_bins import (bilinear_bins, bin_centres, direc
                                                square_to_hemisphere)
 from mscloth.precompute.parallax import parallax_table
 from mscloth.precompute.summed_area import ResidualSAT, build_sat, rect_mean, rect_sum
-from mscloth.precompute.tables import (MultiscaleTables, build_tables, default_cache_dir,
+from mscloth.precompute.tables import (MultiscaleTables, TableKey, build_tables, default_cache_dir,
                                        load_or_build, sggx_fibre_ndf, table_key)
 from mscloth.precompute.visibility import cluster_visibility, visibility_table
 
@@ -370,12 +370,12 @@ def test_escape_mask_far_field_blocks_agree_with_exact():
 
 
 def test_far_field_block_slope_is_close():
-    from mscloth.precompute._march import _block_plan
+    from mscloth.precompute._march import block_plan
     for slope in np.linspace(-1, 1, 401):
-        Q, P, err = _block_plan(slope, 3, 10_000)
+        Q, P, err = block_plan(slope, 3, 10_000)
         assert 16 <= Q <= 48 and np.isclose(err, abs(slope - P / Q), rtol=0, atol=1e-12)
         assert err <= 0.5 / Q and err < 0.011
-    assert _block_plan(0.3, 3, 20) is None          # short rays: always the full march
+    assert block_plan(0.3, 3, 20) is None          # short rays: always the full march
 
 
 def test_back_visibility_is_the_mirrored_field():
@@ -798,12 +798,12 @@ def test_cache_key_changes_with_every_parameter(maps_sq, maps_rect, tmp_path):
     assert t1.key != t2.key
     assert (tmp_path / f"tables-{t2.key}.npz").is_file() and (tmp_path / f"tables-{t1.key}.npz").is_file()
     assert not np.array_equal(t1.d_sat, t2.d_sat)
-    base = tables_mod._params(0.3, dr=4, dv=2, clusters=2)
+    base = TableKey(0.3, dr=4, dv=2, clusters=2).as_params()
     keys = {table_key(maps_sq, base), table_key(maps_rect, base)}
     for change in [dict(dr=5), dict(dv=3), dict(clusters=3), dict(per_cluster_sat=True),
                    dict(seed=1), dict(iters=7), dict(max_step=0.25), dict(vis_eps=1e-3),
                    dict(fast_visibility=False), dict(d_rank=4), dict(parallax=True)]:
-        keys.add(table_key(maps_sq, tables_mod._params(0.3, **{**dict(dr=4, dv=2, clusters=2), **change})))
+        keys.add(table_key(maps_sq, TableKey(0.3, **{**dict(dr=4, dv=2, clusters=2), **change}).as_params()))
     assert len(keys) == 13
 
 

@@ -47,7 +47,7 @@ def test_relative_patterns_resolve_against_the_scene_file(tmp_path, monkeypatch,
 
 
 def test_relative_patterns_resolve_against_the_scene_file_from_the_cli_loader(tmp_path, monkeypatch):
-    from mscloth.cli import _load_scene_file
+    from mscloth.cli import load_scene_file
 
     sub = _scene_dir_with_patterns(tmp_path)
     monkeypatch.chdir(tmp_path / "elsewhere")
@@ -55,7 +55,7 @@ def test_relative_patterns_resolve_against_the_scene_file_from_the_cli_loader(tm
     xml = sub / "scene.xml"
     text = xml.read_text().replace("<shape", '<sensor type="perspective"><film type="hdrfilm"/></sensor><shape', 1)
     xml.write_text(text)
-    scene = _load_scene_file(Path("..") / "sub" / "scene.xml", (8, 8))
+    scene = load_scene_file(Path("..") / "sub" / "scene.xml", (8, 8))
     assert {shape.id() for shape in scene.shapes()} == {"woven", "knit"}
     assert str(mi.file_resolver()) == before  # the scene's directory is not left behind
 

@@ -73,7 +73,7 @@ def _swatch_options(args, scene: str) -> dict:
     return options
 
 
-def _load_scene_file(path: Path, res):
+def load_scene_file(path: Path, res):
     """Load a Mitsuba XML scene, overriding its film's width/height when ``res`` is given and
     naming its cloths after their shapes (:func:`mscloth.loading.name_xml_cloths`)."""
     import xml.etree.ElementTree as ET
@@ -166,7 +166,7 @@ def cmd_render(args) -> int:
             set_pixel_sampler(scene_dict, args.sampler)
         scene = load_dict(scene_dict)
     else:
-        scene = _load_scene_file(Path(args.scene), args.res)
+        scene = load_scene_file(Path(args.scene), args.res)
     loading_seconds = time.perf_counter() - loading_started
     w, h = scene.sensors()[0].film().size()
     print(f"mscloth render: {args.scene}, {w}x{h}, {args.spp} spp, variant {variant} "

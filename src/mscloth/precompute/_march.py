@@ -135,7 +135,7 @@ _CHECK_EVERY = 8
 _BLOCK_MIN, _BLOCK_MAX = 16, 48
 
 
-def _block_plan(slope: float, m_div: int, n_steps: int):
+def block_plan(slope: float, m_div: int, n_steps: int):
     """(Q, P, slope error) for the far field of escape_mask; None when the march is short.
 
     A block is Q major-axis texels (Q*m_div steps); the far field moves by the integer texel
@@ -183,7 +183,7 @@ def escape_mask(h: np.ndarray, direction_t, max_step: float = 0.5, eps: float = 
     rise = dz / horiz * s.step_len                   # height gained per step
     n_steps = int(math.ceil((hmax - float(hw.min())) / rise)) + 1
     thr = hw + np.float32(eps)
-    plan = _block_plan(s.slope, s.m_div, n_steps) if fast else None
+    plan = block_plan(s.slope, s.m_div, n_steps) if fast else None
     if plan is not None:
         Q, P, _ = plan
         n0 = Q * s.m_div
