@@ -119,6 +119,9 @@ def main(argv=None) -> int:
     parser.add_argument("--variant", action="append", default=[],
                         help="'LABEL: --attr NAME=VALUE --set NAME=VALUE ...' (default: the code as it is)")
     parser.add_argument("--res", default="320x180")
+    parser.add_argument("--spp", type=int, default=4,
+                        help="samples per pixel of each noise render (a stratified sampler's noise per "
+                             "sample depends on it: measure at the count you compare at)")
     args = parser.parse_args(argv)
     setup_mitsuba()
     from mscloth.evaluation.regions import REGIONS
@@ -128,7 +131,7 @@ def main(argv=None) -> int:
     print("|---|---|---|---|---|---|---|---|")
     for spec in args.variant or ["default"]:
         label, attrs, params = parse_variant(spec)
-        result = measure(args.scene, width, height, attrs, params)
+        result = measure(args.scene, width, height, attrs, params, spp=args.spp)
         for g in REGIONS:
             r = result[g]
             print(f"| {label} | {g} | {r['noise sun']:.3g} | {r['noise direct sun']:.3g} | {r['noise both']:.3g} | "

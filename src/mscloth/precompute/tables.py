@@ -51,7 +51,7 @@ from ..atomic import atomic_write
 from ..cache import default_cache_dir, mark_used
 from ..errors import ParameterError
 from ._util import Progress, map_ordered, texel_pitch
-from ..scattering.fibre_ndf import fibre_ndf_of_cosines
+from ..scattering.fibre_ndf import fibre_ndf_of_cosines, fibre_ndf_of_unit_cosine_inplace
 from .direction_bins import bilinear_bins, bin_centres, fold_upper, hemisphere_to_square
 from .parallax import parallax_table
 from .summed_area import _residual_cumsum, build_sat, rect_mean, rect_sum
@@ -77,18 +77,15 @@ def sggx_fibre_ndf(m: np.ndarray, t: np.ndarray, alpha: float) -> np.ndarray:
 
 
 def fibre_ndf_of_cosine(mt: np.ndarray, alpha: float, out: np.ndarray | None = None) -> np.ndarray:
-    """:func:`sggx_fibre_ndf` as a function of the cosine m.t (any shape, float64), in
-    place: :func:`mscloth.scattering.fibre_ndf.fibre_ndf_of_cosines` rearranged for unit m
-    (a test holds them equal).
-
-    ``out``: a float64 array to compute in, ``mt`` itself allowed. The directional SAT's
-    chunks are tens of MiB, and a temporary per step would be a pass over memory each."""
-    a2 = alpha * alpha
-    d = np.square(mt, out=out)
-    d *= 1.0 - a2  # (m.t)^2 + alpha^2 (1 - (m.t)^2)
-    d += a2
-    np.square(d, out=d)
-    return np.divide(alpha ** 3 / np.pi, d, out=d)
+    """:func:`sggx_fibre_ndf` as a function of the cosine m.t of a unit m (any shape,
+    float64): :func:`mscloth.scattering.fibre_ndf.fibre_ndf_of_unit_cosine_inplace`, the
+    in-place form of the formula shading evaluates. ``out``: where to compute it, ``mt``
+    itself allowed (the directional SAT's chunks reuse their product's memory)."""
+    if out is None:
+        out = np.array(mt, dtype=np.float64)
+    elif out is not mt:
+        out[...] = mt
+    return fibre_ndf_of_unit_cosine_inplace(out, alpha, np.divide)
 
 
 # ---------------------------------------------------------------------------- the tables
