@@ -81,3 +81,34 @@ def gather_block(source, start, n: int, active=True):
     """[source[start + j] for j < n] per lane, ``start`` a multiple of 4 when n is: read as
     packets of four neighbours (one vector load each instead of four gathers)."""
     return _packets(mi.Vector4f, gather, source, start, n, active)
+
+
+def opaque(dtype, value):
+    """``value`` as a one-lane evaluated (opaque) JIT array of ``dtype`` (``mi.Float`` or
+    ``mi.UInt32``), a plain Python number in scalar variants. For a constant of one BSDF
+    that differs between BSDFs (a tile's size): traced code reads it instead of holding
+    it as a literal, so that BSDFs that differ only in such constants trace identical
+    code (one callable in a render's kernel, shared calibration kernels; as
+    :meth:`.bsdf.cloth.ClothBSDF._parameter` does for float parameters)."""
+    if dr.is_jit_v(mi.Float):
+        return dr.opaque(dtype, value)
+    return float(value) if dtype is mi.Float else int(value)
+
+
+class Extent:
+    """A size in texels (a tile's width or height) for traced code: ``n`` the Python int
+    (array shapes, host-side arithmetic), and :func:`opaque` copies of it as a float
+    (``f``), its reciprocal (``rcp``: ``x * rcp`` is what ``x / n`` traced with a Python
+    int, which Dr.Jit turns into a product by the rounded reciprocal), ``f - 1``
+    (``last_f``) and as unsigned ints (``u``, ``last_u = n - 1``, ``u1 = n + 1``)."""
+
+    __slots__ = ("n", "f", "rcp", "last_f", "u", "last_u", "u1")
+
+    def __init__(self, n: int):
+        self.n = n = int(n)
+        self.f = opaque(mi.Float, float(n))
+        self.rcp = opaque(mi.Float, 1.0 / n)
+        self.last_f = opaque(mi.Float, float(n - 1))
+        self.u = opaque(mi.UInt32, n)
+        self.last_u = opaque(mi.UInt32, n - 1)
+        self.u1 = opaque(mi.UInt32, n + 1)

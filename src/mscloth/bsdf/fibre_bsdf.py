@@ -15,7 +15,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..jit_arrays import flat_array, gather_block
+from ..jit_arrays import Extent, flat_array, gather_block, opaque
 from ..scattering import sheen, spongecake
 from .lobe_mixture import LobeSamplers, lobe_proxies, lobe_weights
 from .lobes import DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, SHEEN, SPECULAR_REFLECTION, SPECULAR_TRANSMISSION
@@ -44,7 +44,12 @@ class ShadingParameters:
 @dataclass
 class TileTables:
     """The cloth maps in Dr.Jit memory: texel (ix, iy)'s four channels at 4 (iy W + ix),
-    one packet read per texel, at the index the visibility and cluster tables use too."""
+    one packet read per texel, at the index the visibility and cluster tables use too.
+
+    Traced code reads the tile's size (``width``, ``height``) and the uniform yarn colour
+    as opaque values, not literals: cloths that differ only in them (tile resolutions,
+    yarn colours) then trace the same code, one callable in a render's kernel instead of
+    one each (docs/performance-log.md L23)."""
 
     #: (tangent x, y, z, yarn coverage) per texel.
     fibre: Any
@@ -55,6 +60,13 @@ class TileTables:
     #: The one yarn colour of uniformly coloured yarns (the common case: no albedo reads,
     #: per texel or from the SATs), else None.
     uniform_yarn_albedo: list | None
+
+    def __post_init__(self):
+        self.width, self.height = Extent(self.tile_w), Extent(self.tile_h)
+        #: :attr:`uniform_yarn_albedo` as an opaque Color3f (None where yarn colours vary).
+        self.uniform_yarn_colour = None
+        if self.uniform_yarn_albedo is not None:
+            self.uniform_yarn_colour = mi.Color3f(*(opaque(mi.Float, c) for c in self.uniform_yarn_albedo))
 
     @staticmethod
     def from_maps(maps) -> TileTables:
@@ -71,7 +83,7 @@ class TileTables:
 
 def edges_in_texels(uv_scale, uv_scale_v, tile: TileTables, si):
     """The pixel footprint's edges si.duv_dx, si.duv_dy in texels of the tile."""
-    su, sv = uv_scale * tile.tile_w, uv_scale_v * tile.tile_h
+    su, sv = uv_scale * tile.width.f, uv_scale_v * tile.height.f
     return (si.duv_dx.x * su, si.duv_dx.y * sv), (si.duv_dy.x * su, si.duv_dy.y * sv)
 
 
@@ -102,12 +114,12 @@ class FibreBSDF:
         wi = mi.Vector3f(si.wi.x, si.wi.y, sign * si.wi.z)
         t_sheen_i = sheen.sheen_transmittance(wi, p.sheen_roughness, p.sheen_thickness)
         # Texel coordinates of si.uv: one tile is tile_w x tile_h texels.
-        x = si.uv.x * p.uv_scale * tile.tile_w
-        y = si.uv.y * p.uv_scale_v * tile.tile_h
+        x = si.uv.x * p.uv_scale * tile.width.f
+        y = si.uv.y * p.uv_scale_v * tile.height.f
         if self.use_parallax:
             # Look up (and centre the footprint on) the texel the view ray reaches
             # first in the height field; the table covers the front side only.
-            ix, iy = self.texel_index(mi.Point2f(x / tile.tile_w, y / tile.tile_h))
+            ix, iy = self.texel_index(mi.Point2f(x * tile.width.rcp, y * tile.height.rcp))
             dx, dy = self.footprint_data.parallax_offset(ix, iy, wi)
             x = dr.select(flip, x, x + dx)
             y = dr.select(flip, y, y + dy)
@@ -117,19 +129,19 @@ class FibreBSDF:
     def texel_index(self, pos):
         """The texel (ix, iy) that nearest lookups at tile coordinates ``pos`` read
         (periodic)."""
-        w, h = self.tile.tile_w, self.tile.tile_h
-        ix = mi.UInt32(dr.clip(dr.floor((pos.x - dr.floor(pos.x)) * w), 0, w - 1))
-        iy = mi.UInt32(dr.clip(dr.floor((pos.y - dr.floor(pos.y)) * h), 0, h - 1))
+        w, h = self.tile.width, self.tile.height
+        ix = mi.UInt32(dr.clip(dr.floor((pos.x - dr.floor(pos.x)) * w.f), 0, w.last_f))
+        iy = mi.UInt32(dr.clip(dr.floor((pos.y - dr.floor(pos.y)) * h.f), 0, h.last_f))
         return ix, iy
 
     def texel(self, fr: ViewFrame, x, y) -> Texel:
         """The fibre-level state at texel coordinates (x, y) (periodic)."""
         tile = self.tile
-        ix, iy = self.texel_index(mi.Point2f(x / tile.tile_w, y / tile.tile_h))
-        start = (iy * tile.tile_w + ix) * 4
+        ix, iy = self.texel_index(mi.Point2f(x * tile.width.rcp, y * tile.height.rcp))
+        start = (iy * tile.width.u + ix) * 4
         fibre = gather_block(tile.fibre, start, 4, fr.active)
-        if tile.uniform_yarn_albedo is not None:
-            color = mi.Color3f(*tile.uniform_yarn_albedo)
+        if tile.uniform_yarn_colour is not None:
+            color = tile.uniform_yarn_colour
         else:
             color = mi.Color3f(*gather_block(tile.color, start, 4, fr.active)[:3])
         tangent = mi.Vector3f(fibre[0], fibre[1], fr.sign * fibre[2])

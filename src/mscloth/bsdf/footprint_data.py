@@ -7,7 +7,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..jit_arrays import flat_array, flat_word_array, gather, gather_block, gather_word, gather_words
+from ..jit_arrays import Extent, flat_array, flat_word_array, gather, gather_block, gather_word, gather_words
 from ..precompute.direction_bins import bin_centres
 from ..scattering import sggx
 from .sat_queries import ResidualSATs, hemisphere_bins
@@ -18,6 +18,9 @@ class FootprintData:
 
     def __init__(self, tables, with_sats: bool, with_parallax: bool):
         self.H, self.W = tables.visibility.shape[:2]
+        # The tile's width as traced code reads it: opaque, so that tiles of different
+        # sizes trace the same code (:class:`.jit_arrays.Extent`).
+        self.width = Extent(self.W)
         self.dr = int(tables.dr)
         self.dv = int(tables.dv)
         self.clusters = int(tables.cluster_vis.shape[0])
@@ -140,7 +143,7 @@ class FootprintData:
     def texel_visibility(self, ix, iy):
         """The visibility bits of texel (ix, iy), for :meth:`visibility_of`: its four words
         (up to 8x8 bins), or where its block starts."""
-        base = (iy * self.W + ix) * self.words_per_texel
+        base = (iy * self.width.u + ix) * self.words_per_texel
         if self.packed_visibility:
             return gather_words(self.visibility, base, 4)
         return base
@@ -193,7 +196,7 @@ class FootprintData:
         """Texel offset (dx, dy) from texel (ix, iy) to where a view ray from direction ``w``
         (upper hemisphere, front side) first meets the height field (Alg. 3)."""
         bins, weights = hemisphere_bins(w, self.dv)
-        base = ((iy * self.W + ix) * self.n_dirs)
+        base = ((iy * self.width.u + ix) * self.n_dirs)
         dx = mi.Float(0.0)
         dy = mi.Float(0.0)
         for b, wt in zip(bins, weights):
@@ -202,4 +205,4 @@ class FootprintData:
         return dx, dy
 
     def cluster_of(self, ix, iy):
-        return mi.UInt32(gather(self.cluster_id, iy * self.W + ix))
+        return mi.UInt32(gather(self.cluster_id, iy * self.width.u + ix))

@@ -293,7 +293,7 @@ class FootprintEstimator:
         fibre = self.fibre
         fd = fibre.footprint_data
         sats = fd.scalar_sats
-        uniform_albedo = fibre.tile.uniform_yarn_albedo
+        uniform_albedo = fibre.tile.uniform_yarn_colour
         if xi is None or fp is None:
             hashed = self.shading_hash(si)
             if xi is None:
@@ -325,7 +325,7 @@ class FootprintEstimator:
         st.yarn_mean = yarn_mean = mean(fd.GAP)
         inv_yarn = dr.select(yarn_mean > 1e-6, dr.rcp(yarn_mean), 0.0)
         if uniform_albedo is not None:
-            st.yarn_albedo = mi.Color3f(*uniform_albedo)
+            st.yarn_albedo = uniform_albedo
         else:
             st.yarn_albedo = mi.Color3f(*[mean(fd.ALBEDO + c) * inv_yarn for c in range(3)])
         if enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]:
@@ -482,7 +482,7 @@ class FootprintEstimator:
                         # less (a 384^2 footprint's variance ratio 0.06 against 0.41)
                         # (bench/footprint_bias_scan.py, docs/performance-log.md L15).
                         x0, y0, x1, y1 = st.fp.box
-                        whole_tiles = (x1 - x0 >= fibre.tile.tile_w) & (y1 - y0 >= fibre.tile.tile_h)
+                        whole_tiles = (x1 - x0 >= fibre.tile.width.f) & (y1 - y0 >= fibre.tile.height.f)
                         vbar_spec = [dr.select(whole_tiles, vb, w_bar) for vb in vbar_p]
                 else:
                     base = d_yarn * texel_mean

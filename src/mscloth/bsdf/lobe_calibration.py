@@ -34,7 +34,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..jit_arrays import flat_array, gather_block, lane_values
+from ..jit_arrays import flat_array, gather_block, lane_values, opaque
 from .lobes import (DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN, SPECULAR_REFLECTION,
                     SPECULAR_TRANSMISSION)
 
@@ -148,8 +148,9 @@ def measure_share_factors(bsdf, footprint_uv, nodes: int = 16, lanes: int = 4096
     mean square of g's weights. Normalised to a p-weighted mean of 1 per node; lobes with
     fewer than MIN_SHARE_SAMPLES samples at a node keep factor 1 there."""
     si, s1, s2 = _lanes(nodes, lanes, seed)
-    si.duv_dx = mi.Vector2f(footprint_uv[0], 0.0)
-    si.duv_dy = mi.Vector2f(0.0, footprint_uv[1])
+    # Opaque: BSDFs whose tiles differ in size (footprint_uv with them) trace one kernel.
+    si.duv_dx = mi.Vector2f(opaque(mi.Float, footprint_uv[0]), 0.0)
+    si.duv_dy = mi.Vector2f(0.0, opaque(mi.Float, footprint_uv[1]))
     # Inputs evaluated first, so the pass's kernel holds the sampling alone.
     dr.eval(si, s1, s2)
     bs, weight = bsdf.sample(mi.BSDFContext(), si, s1, s2)

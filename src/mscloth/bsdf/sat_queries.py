@@ -12,7 +12,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..jit_arrays import flat_array, gather, gather_block
+from ..jit_arrays import Extent, flat_array, gather, gather_block, opaque
 
 
 class RectQuery:
@@ -63,6 +63,9 @@ class ResidualSATs:
     corner share cache lines, so the direction bins (or the gap/moment/cluster channels)
     that one footprint reads at a corner cost a few cache misses instead of one per
     channel: footprint shading is bound by these misses, not by arithmetic.
+
+    Traced code reads the tile's size as opaque values (:class:`.jit_arrays.Extent`), so
+    that tables of different tile sizes trace the same code.
     """
 
     def __init__(self, sat: np.ndarray, mean: np.ndarray):
@@ -71,6 +74,8 @@ class ResidualSATs:
             sat = sat[None]
         self.channels, rows, cols = sat.shape
         self.H, self.W = rows - 1, cols - 1
+        self.width, self.height = Extent(self.W), Extent(self.H)
+        self.row_stride = opaque(mi.UInt32, (self.W + 1) * self.channels)
         self.data = flat_array(np.moveaxis(sat, 0, -1))
         self.mean = flat_array(np.asarray(mean, dtype=np.float64))
         self.total = flat_array(sat[:, self.H, self.W])  # ~0 by construction
@@ -82,23 +87,23 @@ class ResidualSATs:
     def _corner(self, x, y, on_grid=False, home_x=False, home_y=False):
         """``home_x`` / ``home_y``: x (y) lies in [0, W] ([0, H]), no whole tiles along it
         (x = W reads the last column itself: the same value, float rounding allowed)."""
-        W, H = float(self.W), float(self.H)
+        w, h = self.width, self.height
         c = _Corner()
         c.home_x, c.home_y = home_x, home_y
-        c.qx = 0.0 if home_x else dr.floor(x / W)
-        c.qy = 0.0 if home_y else dr.floor(y / H)
-        rx = dr.clip(x - c.qx * W, 0.0, W)
-        ry = dr.clip(y - c.qy * H, 0.0, H)
+        c.qx = 0.0 if home_x else dr.floor(x * w.rcp)
+        c.qy = 0.0 if home_y else dr.floor(y * h.rcp)
+        rx = dr.clip(x if home_x else x - c.qx * w.f, 0.0, w.f)
+        ry = dr.clip(y if home_y else y - c.qy * h.f, 0.0, h.f)
         if on_grid:  # whole coordinates: the grid point itself, W and H included
             ix = mi.UInt32(dr.round(rx))
             iy = mi.UInt32(dr.round(ry))
         else:
-            ix = dr.minimum(mi.UInt32(dr.floor(rx)), self.W - 1)
-            iy = dr.minimum(mi.UInt32(dr.floor(ry)), self.H - 1)
+            ix = dr.minimum(mi.UInt32(dr.floor(rx)), w.last_u)
+            iy = dr.minimum(mi.UInt32(dr.floor(ry)), h.last_u)
         c.fx = rx - mi.Float(ix)
         c.fy = ry - mi.Float(iy)
         c.ix, c.iy = ix, iy
-        c.cell = iy * (self.W + 1) + ix
+        c.cell = iy * w.u1 + ix
         # Footprints inside one tile have qx = qy = 0 at every corner: no edge reads.
         c.use_col = c.qx != 0.0
         c.use_row = c.qy != 0.0
@@ -114,8 +119,9 @@ class ResidualSATs:
         same integral (the tile repeats), small tile counts at the corners (texel coordinates
         of a finely tiled surface reach 1e5, and qx * col products of that size lost float32
         precision), and no edge reads for corners inside the first tile."""
-        sx = dr.floor(x0 / float(self.W)) * float(self.W)
-        sy = dr.floor(y0 / float(self.H)) * float(self.H)
+        w, h = self.width, self.height
+        sx = dr.floor(x0 * w.rcp) * w.f
+        sy = dr.floor(y0 * h.rcp) * h.f
         return x0 - sx, y0 - sy, x1 - sx, y1 - sy
 
     def query(self, x0, y0, x1, y1) -> RectQuery:
@@ -167,7 +173,7 @@ class ResidualSATs:
         """Integral of the original values of ``channel`` (int or per-lane UInt32) over the
         rectangle of query ``q`` (made by any table of this tile size)."""
         C = self.channels
-        row_stride = (self.W + 1) * C
+        row_stride = self.row_stride
         channel = mi.UInt32(channel)
         total = gather(self.total, channel)
 
