@@ -145,8 +145,8 @@ def test_float_heights_arch_long_floats_and_keep_plain_weave():
 def test_every_preset_renders_without_nan():
     """Every preset's parameters through the multi-scale BSDF and clothpath, all in one
     scene (one kernel for all): a row of squares under a sky and a low sun, each a finite,
-    lit patch of the image (tiles of 64 texels, so the tables build in a second; the
-    presets' own maps are checked above)."""
+    lit patch of the image (tiles of 64 texels, or 2 per warp end where a preset has more
+    ends, so the tables build in a second; the presets' own maps are checked above)."""
     from mscloth.loading import load_dict
 
     names = sorted(REQUIRED)
@@ -160,11 +160,17 @@ def test_every_preset_renders_without_nan():
              "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [0.4, 0.45, 0.5]}},
              "sun": {"type": "directional", "direction": [0.4, 0.5, -0.6],
                      "irradiance": {"type": "rgb", "value": [3.0, 3.0, 3.0]}}}
+
+    def texels(name):
+        meta = fabric(name).maps().meta
+        return max(64, 2 * len(meta["drawdown"][0])) if "drawdown" in meta else 64
+
     for i, name in enumerate(names):
         # Squares of 0.9 x 0.9 units side by side, each filling its 8 x 8 pixels.
         scene[f"swatch-{i}"] = {"type": "rectangle",
                                 "to_world": T().translate([(i - (n - 1) / 2) * 1.0, 0.0, 0.0]) @ T().scale(0.49),
-                                "bsdf": {"type": "cloth", "fabric": name, "resolution": 64, "uv_scale": 8.0}}
+                                "bsdf": {"type": "cloth", "fabric": name, "resolution": texels(name),
+                                         "uv_scale": 8.0}}
     image = np.array(mi.render(load_dict(scene), spp=2, seed=1))
     assert np.all(np.isfinite(image))
     for i, name in enumerate(names):
@@ -222,3 +228,98 @@ def test_fabric_file_errors_name_the_file_and_field(tmp_path):
         load_fabric_file(bad)
     with pytest.raises(ParameterError, match="does not exist"):
         fabric(str(tmp_path / "missing.json"))
+
+
+# ---------------------------------------------------------------- slubs, rib relief, seams
+SLUBBY = ("linen", "silk-shantung")
+
+
+@pytest.mark.parametrize("name", SLUBBY)
+def test_slubs_vary_the_diameter_along_each_yarn(name):
+    """A slubby preset's yarns thicken along their length (not from thread to thread):
+    at each crossing where a yarn is over, its surface stands A (1 + f) above the cloth's
+    mid-plane, f its diameter factor there (slub_factors with the maps' own seed), so
+    along a yarn its crossings' heights range over the preset's slub amplitude."""
+    from mscloth.maps.woven import slub_factors
+
+    f = fabric(name)
+    maps = f.maps()
+    meta = maps.meta
+    dd = np.asarray(meta["drawdown"], dtype=bool)
+    n_weft, n_warp = dd.shape
+    width_mm, height_mm = meta["tile_size_mm"]
+    H, W = maps.resolution
+    amplitudes = meta["slub"]
+    # Tiles hold at least one slub spacing along each slubby yarn: slubs fall irregularly,
+    # not once per thread per tile.
+    for length, amp in zip((height_mm, width_mm), amplitudes):
+        assert amp == 0.0 or length >= f.slub_spacing_mm - 1e-9
+    yh = meta["yarn_height"]
+    kw = {"length_mm": tuple(meta["slub_length_mm"]), "spacing_mm": meta["slub_spacing_mm"]}
+    rows = ((np.arange(n_weft) + 0.5) * H / n_weft).astype(int)   # texel at each pick's centre
+    cols = ((np.arange(n_warp) + 0.5) * W / n_warp).astype(int)
+    h_mm = maps.height * width_mm
+    for family, amp in zip(("warp", "weft"), amplitudes):
+        if family == "warp":
+            spacing, diam, over = 10.0 / f.ends_per_cm, f.yarn_diameter_mm[0], dd
+            pos = (rows + 0.5) * height_mm / H
+            fac = slub_factors(n_warp, height_mm, amp, pos, seed=[meta["slub_seed"], 0], **kw).T
+            heights = h_mm[np.ix_(rows, cols)]                               # (picks, ends)
+        else:
+            spacing, diam, over = 10.0 / f.picks_per_cm, f.yarn_diameter_mm[-1], ~dd.T
+            pos = (cols + 0.5) * width_mm / W
+            fac = slub_factors(n_weft, width_mm, amp, pos, seed=[meta["slub_seed"], 1], **kw).T
+            heights = h_mm[np.ix_(rows, cols)].T                             # (ends, picks)
+        A = 0.5 * yh * min(diam, spacing)
+        # (Texel centres lie up to half a texel off the crossing: a few % lower at 4 per end.)
+        assert np.allclose(heights[over], A * (1.0 + fac[over]), rtol=0.06), family
+        if amp > 0.0:
+            assert np.corrcoef(heights[over], fac[over])[0, 1] > 0.98, family
+        ratio = np.array([fac[over[:, k], k].max() / fac[over[:, k], k].min() for k in range(over.shape[1])])
+        if amp == 0.0:
+            assert np.allclose(ratio, 1.0)
+        else:
+            # Crossings sample a slub within a quarter spacing of its peak (slubs >= 2 mm).
+            assert 1.0 + 0.75 * amp <= ratio.max() <= 1.0 + amp + 1e-9, (family, ratio)
+            assert np.mean(ratio > 1.0 + 0.25 * amp) > 0.4   # most yarns carry slubs
+    assert np.any(np.asarray(amplitudes) > 0)
+
+
+def test_wool_rib_knit_wales_stand_proud_of_its_purl_wales():
+    """Close up the rib must read as ribs: the knit wales' tops stand at least 0.8 yarn
+    diameters above the purl wales' (they lay level before rib_depth)."""
+    f = fabric("wool-rib")
+    maps = f.maps()
+    stitches = np.asarray(maps.meta["stitches"])
+    nw = stitches.shape[1]
+    h_mm = maps.height * maps.meta["tile_size_mm"][0]
+    per = maps.resolution[1] // nw
+    tops = np.array([np.percentile(h_mm[:, j * per + per // 4:(j + 1) * per - per // 4], 90)
+                     for j in range(nw)])
+    knit = stitches.mean(axis=0) == 1
+    assert tops[knit].min() - tops[~knit].max() >= 0.8 * f.yarn_diameter_mm[0], tops
+
+
+@pytest.mark.parametrize("name", ["cotton-jersey", "wool-rib"])
+def test_knit_preset_tile_edges_are_like_any_wale_or_course_boundary(name):
+    """No seam at the tile's edges: the maps of the preset's stitches rolled by one wale
+    (one course) are its maps rolled by one wale's (course's) texels."""
+    from mscloth.maps.knit import knit_maps
+
+    maps = fabric(name).maps()
+    m = maps.meta
+    stitches = np.asarray(m["stitches"])
+    nc, nw = stitches.shape
+    H, W = maps.resolution
+    kw = dict(yarn_width=m["yarn_width"], loop_aspect=m["loop_aspect"], loop_height=m["loop_height"],
+              leg_tilt_deg=m["leg_tilt_deg"], yarn_height=m["yarn_height"],
+              fibre_twist_deg=m["fibre_twist_deg"], rib_depth=m["rib_depth"])
+    assert W % nw == 0
+    for axis, count, size in ((1, nw, W), (0, nc, H)):
+        if size % count:
+            continue  # (wool-rib: 137 texels for 5 courses; its wales are checked)
+        texels = size // count
+        rolled = knit_maps(np.roll(stitches, 1, axis=axis), (H, W), **kw)
+        for field in ("height", "normal", "tangent", "gap"):
+            a = np.roll(np.asarray(getattr(maps, field)), texels, axis=axis)
+            assert np.allclose(getattr(rolled, field), a, atol=1e-5), (field, axis)

@@ -103,10 +103,12 @@ def test_maps_valid(pattern):
     assert np.array_equal(maps.yarn_id == -1, maps.gap == 0)
     assert set(np.unique(maps.yarn_id)) <= set(range(-1, nc))
     assert np.all(maps.albedo[maps.gap == 0] == 0)
-    # Yarn surfaces are above the hole floor, never above the front layer's top (d + r).
+    # Yarn surfaces are above the hole floor, never above the front layer's top (d + r),
+    # raised by the wale's rib offset (rib_depth 1: yarn_width / 2 for a rib's knit wales).
     floor = float(maps.height.min())
     assert np.all(maps.height[maps.gap == 1] > floor)
-    assert maps.height.max() <= (0.225 + 0.225) / nw + 1e-6
+    kind = (2.0 * pattern.stitches - 1.0).mean(axis=0)
+    assert maps.height.max() <= (0.225 + 0.225 + 0.5 * 0.45 * (kind - kind.mean()).max()) / nw + 1e-6
     assert maps.meta["generator"] == "knit"
     assert maps.meta["stitches"] == pattern.stitches.tolist()
     assert maps.meta["tile_aspect"] == pytest.approx(nc * A / nw)
@@ -274,7 +276,7 @@ def _centre_region(maps, i, j, nc, nw, frac=0.5):
 
 def test_rib_purl_stitches_show_u_running_yarn():
     pattern = rib(1, 1)
-    maps = knit_maps(pattern, (96, 240), fibre_twist_deg=0.0)
+    maps = knit_maps(pattern, (96, 240), fibre_twist_deg=0.0, rib_depth=0.0)
     t, gap = maps.tangent, maps.gap == 1
     purl = _centre_region(maps, 0, 1, 1, 2)
     knit = _centre_region(maps, 0, 0, 1, 2)
@@ -284,6 +286,31 @@ def test_rib_purl_stitches_show_u_running_yarn():
     assert np.abs(t[purl][..., 0]).mean() > 1.5 * np.abs(t[purl][..., 1]).mean()
     # The purl bump reaches the front layer (top at d + r = 0.45 wale = 0.225 tile widths).
     assert maps.height[purl].max() == pytest.approx(0.225, abs=0.005)
+
+
+def _wale_tops(maps, nw):
+    """The 90th percentile of the height (wale units) in the middle half of each wale."""
+    h = maps.height * nw
+    per = maps.resolution[1] // nw
+    return np.array([np.percentile(h[:, j * per + per // 4:(j + 1) * per - per // 4], 90)
+                     for j in range(nw)])
+
+
+def test_rib_knit_wales_stand_proud_of_purl_wales():
+    """A rib draws together: its knit wales stand out, its purl wales recede by rib_depth
+    yarn widths (before rib_depth both lay at the front layer's top: no relief)."""
+    for depth in (0.5, 1.0, 2.0):
+        tops = _wale_tops(knit_maps(rib(2, 2).tiled(4, 1), 256, rib_depth=depth), 4)
+        relief = tops[:2].min() - tops[2:].max()
+        assert relief == pytest.approx(depth * 0.45, abs=0.05 * 0.45 + 0.02), (depth, tops)
+    default = _wale_tops(knit_maps(rib(2, 2).tiled(4, 1), 256), 4)
+    assert default[:2].min() - default[2:].max() >= 0.9 * 0.45
+    flat = _wale_tops(knit_maps(rib(2, 2).tiled(4, 1), 256, rib_depth=0.0), 4)
+    assert abs(flat[:2].mean() - flat[2:].mean()) < 0.02
+    # Patterns whose wales all mix knit and purl alike have no rib relief.
+    for pattern in (jersey(), garter(), seed(), reverse_jersey()):
+        a, b = knit_maps(pattern, 64), knit_maps(pattern, 64, rib_depth=3.0)
+        assert np.array_equal(a.height, b.height) and np.array_equal(a.tangent, b.tangent)
 
 
 def test_gap_fraction_and_yarn_width():
@@ -341,6 +368,7 @@ def test_colours_land_in_albedo():
     (dict(fibre_twist_deg=120.0), "fibre_twist_deg must be in [-90, 90]"),
     (dict(fibre_twist_deg="30"), "fibre_twist_deg"),
     (dict(wale_spacing_mm=0.0), "wale_spacing_mm"),
+    (dict(rib_depth=-0.5), "rib_depth must be in [0, 4]"),
     (dict(resolution=3), "resolution (texels along u) must be in [5, 16384]"),
     (dict(resolution=(64, 2)), "resolution W must be in [4,"),
     (dict(resolution=(64, 64, 3)), "resolution must be"),

@@ -13,7 +13,8 @@ from mscloth.errors import MapsError, ParameterError, PatternError
 from mscloth.maps.builtin import BUILTIN_PATTERNS, resolve_pattern
 from mscloth.maps.cloth_maps import ARRAY_FIELDS, ClothMaps
 from mscloth.maps.preview import write_previews
-from mscloth.maps.woven import woven_maps
+from mscloth.maps.woven import slub_factors, woven_maps
+from mscloth.patterns.draft import Draft
 from mscloth.patterns.weaves import plain, validate_drawdown
 
 RES = 128
@@ -304,6 +305,72 @@ def test_large_tile_generates():
     maps = woven_maps(plain(), 1024)
     assert maps.resolution == (1024, 1024)
     assert np.all(np.isfinite(maps.tangent))
+
+
+# ---------------------------------------------------------------- slubs
+def test_slub_factors_periodic_mean_one_and_peak_amplitude():
+    period, n = 20.0, 4000
+    pos = (np.arange(2 * n + 1)) * (period / n)          # two periods and one sample
+    f, b = slub_factors(12, period, 0.5, pos, length_mm=(2.0, 6.0), spacing_mm=5.0, seed=3,
+                        bumps=True)
+    assert np.allclose(f[:, :n], f[:, n:2 * n]) and np.allclose(f[:, 0], f[:, -1])  # periodic
+    one = f[:, :n]
+    assert np.allclose(one.mean(axis=1), 1.0, atol=2e-3)   # the stated diameter is the mean
+    slubby = b[:, :n].max(axis=1) > 0.999
+    assert slubby.sum() >= 8                              # ~4 slubs per yarn expected
+    assert np.allclose(one.max(axis=1)[slubby] / one.min(axis=1)[slubby], 1.5, rtol=1e-3)
+    # Continuous (raised cosines of half-length >= 1 mm): no step beyond the steepest slope.
+    assert np.abs(np.diff(f, axis=1)).max() <= 0.5 * (np.pi / 2.0) * (period / n) * 1.01
+    assert np.array_equal(slub_factors(3, period, 0.0, pos), np.ones((3, pos.size)))
+    # Irregular: slubs lie at different places on different yarns.
+    assert np.corrcoef(f[:, :n])[np.triu_indices(12, 1)].max() < 0.9
+
+
+def test_slubs_vary_the_yarn_width_along_it():
+    """An open plain weave with a slubby warp: where no weft covers it, a warp end is as
+    wide as its diameter there (slub_factors); the even weft keeps its width."""
+    draft = Draft(np.tile(plain(), (16, 1)), warp_spacing=1.0, weft_spacing=1.0)  # 32 x 2 mm
+    per = 40                                              # texels per mm
+    maps = woven_maps(draft, (32 * per, 2 * per), yarn_width=0.4, slub=(0.5, 0.0),
+                      slub_length_mm=(3.0, 8.0), slub_spacing_mm=8.0, slub_seed=7)
+    y = (np.arange(32 * per) + 0.5) / per
+    f = slub_factors(2, 32.0, 0.5, y, length_mm=(3.0, 8.0), spacing_mm=8.0, seed=[7, 0])
+    clear = np.abs((y % 1.0) - 0.5) > 0.25                # rows beside the weft picks
+    for end in (0, 1):
+        width = (maps.yarn_id[:, end * per:(end + 1) * per] == end).sum(axis=1) / per
+        assert np.allclose(width[clear], 0.4 * f[end][clear], atol=1.5 / per)
+        assert width[clear].max() / width[clear].min() > 1.3     # it does vary along the yarn
+    picks = maps.yarn_id[:, :per] >= 2
+    widths = picks.reshape(32, per, per)[..., 0].sum(axis=1)  # weft rows in column 0 per pick
+    assert np.ptp(widths[::2]) <= 1                        # even weft
+
+
+def test_slubby_maps_are_seamless():
+    maps = woven_maps(np.tile(plain(), (6, 6)), (192, 192), slub=0.6, slub_length_mm=(0.5, 3.0),
+                      slub_spacing_mm=2.0, slub_seed=1)
+    assert maps.meta["slub"] == [0.6, 0.6]
+    # The tile's edge is a thread boundary like the 11 inside it: its step (the mean over
+    # the edge) is one of theirs, no seam (tangents flip between warp and weft anyway).
+    for axis in (0, 1):
+        for name in ("height", "tangent", "normal", "albedo"):
+            a = np.asarray(getattr(maps, name), dtype=float)
+            wrapped = np.concatenate([a, np.take(a, [0], axis=axis)], axis=axis)
+            steps = np.abs(np.diff(wrapped, axis=axis))
+            steps = steps.reshape(steps.shape[:2] + (-1,)).sum(axis=-1).mean(axis=1 - axis)
+            boundaries = steps[16 - 1::16]                   # 16 texels per thread
+            assert boundaries[-1] <= 1.25 * boundaries[:-1].max() + 1e-6, (name, axis, boundaries)
+
+
+def test_slub_parameter_errors():
+    for kwargs, words in ((dict(slub=-0.1), "slub must be in [0, 4]"),
+                          (dict(slub=(0.1, 0.2, 0.3)), "slub must be a number or a (warp, weft) pair"),
+                          (dict(slub_length_mm=(3.0, 2.0)), "slub_length_mm must be (shortest, longest)"),
+                          (dict(slub_spacing_mm=0.0), "slub_spacing_mm"),
+                          (dict(slub_seed=1.5), "slub_seed must be an integer"),
+                          (dict(slub_tone=3.0), "slub_tone must be in [0.5, 2]")):
+        with pytest.raises(ParameterError) as info:
+            woven_maps(plain(), 16, **kwargs)
+        assert words in str(info.value)
 
 
 # ---------------------------------------------------------------- previews

@@ -71,8 +71,13 @@ class Fabric:
     sheen_thickness: float
     ply: int = 1                      # plies per yarn
     ply_twist_deg: float = 30.0       # ply angle to the yarn axis (ply > 1)
-    slub: float = 0.0                 # relative spread of yarn diameters (slubby yarns)
-    repeat: int = 1                   # the weave's repeat tiled this often each way (slubs)
+    slub: float | tuple = 0.0         # slubby yarns: a slub is 1 + slub times the yarn
+                                      # between slubs (one for both, or (warp, weft))
+    slub_length_mm: tuple = (2.0, 8.0)  # shortest and longest slub
+    slub_spacing_mm: float = 12.0     # mean distance between slubs along a yarn
+    slub_tone: float = 1.0            # albedo at a slub's peak / between slubs
+    repeat: int | tuple = 1           # the weave's repeat tiled this often each way, or
+                                      # (along u: ends, along v: picks); long for slubs
     profile_exponent: float = 2.0     # cross-section: 2 round, larger flatter (filament)
     float_arch: float = 1.0           # floats arch over their crossings (woven_maps)
     texels_per_thread: int = TEXELS_PER_THREAD
@@ -107,14 +112,27 @@ class Fabric:
 
     def _gap_fraction(self) -> float:
         """Open area of the cloth seen along the normal: the mean open width of the warp
-        ends times that of the weft picks (exact for uniform spacing; slubby threads each
-        count with their own diameter). Knits: 0, their holes depend on the loop shape."""
+        ends times that of the weft picks (exact for uniform spacing and even yarns; slubby
+        yarns count with their diameter all along them, which ignores the small correlation
+        of a warp's and a weft's thickness at a crossing). Knits: 0, their holes depend on
+        the loop shape."""
         if self.structure == "knit":
             return 0.0
         draft = _woven_draft(self)
-        open_warp = np.mean(1.0 - np.minimum(1.0, draft.warp_thickness / draft.warp_spacing))
-        open_weft = np.mean(1.0 - np.minimum(1.0, draft.weft_thickness / draft.weft_spacing))
+        (f_warp, f_weft) = _slub_factors(self, draft, 512)
+        open_warp = np.mean(1.0 - np.minimum(1.0, draft.warp_thickness[:, None] * f_warp
+                                             / draft.warp_spacing[:, None]))
+        open_weft = np.mean(1.0 - np.minimum(1.0, draft.weft_thickness[:, None] * f_weft
+                                             / draft.weft_spacing[:, None]))
         return float(open_warp * open_weft)
+
+    def _repeats(self) -> tuple[int, int]:
+        """(along u, along v): how often the weave's repeat is tiled across and down."""
+        r = self.repeat
+        return (int(r[0]), int(r[-1])) if isinstance(r, (tuple, list)) else (int(r), int(r))
+
+    def _slub_seed(self) -> int:
+        return sum(map(ord, self.name))  # stable per fabric
 
     def yarn_height(self) -> float:
         """The woven maps' ``yarn_height`` (peak-to-peak undulation / yarn width) giving
@@ -154,7 +172,7 @@ def _pattern_columns(fabric: Fabric) -> int:
         return _knit_pattern(fabric).n_wales
     from .patterns.named import named_pattern
 
-    return named_pattern(fabric.pattern).n_warp * fabric.repeat
+    return named_pattern(fabric.pattern).n_warp * fabric._repeats()[0]
 
 
 def _knit_pattern(fabric: Fabric):
@@ -173,24 +191,45 @@ def _knit_pattern(fabric: Fabric):
 
 
 def _woven_draft(fabric: Fabric):
-    """The fabric's Draft: its weave tiled ``repeat`` times, per-thread spacing and
-    diameters (slubby yarns vary from thread to thread, from a fixed seed) and colours."""
+    """The fabric's Draft: its weave tiled ``repeat`` times (across, down), its spacing,
+    mean yarn diameters and colours (slubs vary the diameter along each yarn: the maps'
+    ``slub``)."""
     from .patterns.draft import Draft
     from .patterns.named import named_pattern
 
     base = named_pattern(fabric.pattern)
-    drawdown = np.tile(base.drawdown, (fabric.repeat, fabric.repeat))
+    across, down = fabric._repeats()
+    drawdown = np.tile(base.drawdown, (down, across))
     n_weft, n_warp = drawdown.shape
-    rng = np.random.default_rng(sum(map(ord, fabric.name)))  # stable per fabric
     d_warp, d_weft = fabric._diameters()
-
-    def diameters(d, count):
-        return d * (1.0 + fabric.slub * rng.uniform(-1.0, 1.0, count)) if fabric.slub else np.full(count, d)
-
     return Draft(drawdown, warp_colors=fabric.warp_color, weft_colors=fabric.weft_color,
                  warp_spacing=fabric.warp_spacing_mm, weft_spacing=fabric.weft_spacing_mm,
-                 warp_thickness=diameters(d_warp, n_warp), weft_thickness=diameters(d_weft, n_weft),
+                 warp_thickness=np.full(n_warp, d_warp), weft_thickness=np.full(n_weft, d_weft),
                  name=fabric.name)
+
+
+def _slub_arguments(fabric: Fabric) -> dict:
+    """The woven maps' slub arguments of a preset."""
+    return {"slub": fabric.slub, "slub_length_mm": tuple(fabric.slub_length_mm),
+            "slub_spacing_mm": fabric.slub_spacing_mm, "slub_seed": fabric._slub_seed(),
+            "slub_tone": fabric.slub_tone}
+
+
+def _slub_factors(fabric: Fabric, draft, samples: int):
+    """(warp, weft) diameter / mean diameter along each yarn at ``samples`` points over the
+    tile, as the woven maps draw them (:func:`mscloth.maps.woven.slub_factors`)."""
+    from .maps.woven import _pair, slub_factors
+
+    args = _slub_arguments(fabric)
+    amp_warp, amp_weft = _pair("slub", args.pop("slub"), 0.0, 4.0)
+    seed = args.pop("slub_seed")
+    args.pop("slub_tone")
+    kw = {"length_mm": args["slub_length_mm"], "spacing_mm": args["slub_spacing_mm"]}
+    width_mm, height_mm = draft.size_mm
+    along_v = (np.arange(samples) + 0.5) * (height_mm / samples)
+    along_u = (np.arange(samples) + 0.5) * (width_mm / samples)
+    return (slub_factors(draft.n_warp, height_mm, amp_warp, along_v, seed=[seed, 0], **kw),
+            slub_factors(draft.n_weft, width_mm, amp_weft, along_u, seed=[seed, 1], **kw))
 
 
 @functools.lru_cache(maxsize=8)
@@ -201,7 +240,8 @@ def _fabric_maps(fabric: Fabric, resolution: int):
         maps = woven_maps(_woven_draft(fabric), resolution, yarn_height=fabric.yarn_height(),
                           profile_exponent=fabric.profile_exponent,
                           fibre_twist_deg=fabric.fibre_twist_deg, ply_count=fabric.ply,
-                          ply_twist_deg=fabric.ply_twist_deg, float_arch=fabric.float_arch)
+                          ply_twist_deg=fabric.ply_twist_deg, float_arch=fabric.float_arch,
+                          **_slub_arguments(fabric))
     else:
         from .maps.knit import knit_maps
 
@@ -279,27 +319,32 @@ FABRICS: dict[str, Fabric] = {f.name: f for f in (
                "inclination 30 degrees from Irawan & Marschner 2012's wool gabardine",
         look="a steep, fine twill line and a soft sheen"),
     Fabric(
-        name="linen", title="Linen", structure="woven", pattern="plain", repeat=8, texels_per_thread=8,
-        ends_per_cm=20, picks_per_cm=20, yarn_diameter_mm=(0.5, 0.5), slub=0.15,
+        name="linen", title="Linen", structure="woven", pattern="plain", repeat=16, texels_per_thread=8,
+        ends_per_cm=20, picks_per_cm=20, yarn_diameter_mm=(0.55, 0.55),
+        slub=0.8, slub_length_mm=(2.0, 9.0), slub_spacing_mm=10.0, slub_tone=1.2,
         fibre_twist_deg=-15.0, inclination_deg=28.0,
         warp_color=(0.78, 0.72, 0.60), weft_color=(0.74, 0.68, 0.56),
         roughness=0.35, thickness=2.0, specular_albedo=0.25, specular_transmittance=0.1,
         diffuse_albedo=0.6, diffuse_transmittance=0.08,
         sheen_color=(0.85, 0.8, 0.7), sheen_roughness=0.6, sheen_thickness=0.1,
-        source="plain weave of wet-spun flax, ~50 x 50 threads/inch, irregular (slubby) yarns "
-               "about +-15% in diameter; flax is spun with a low Z twist",
+        source="plain weave of wet-spun flax, ~50 x 50 threads/inch, irregular (slubby) yarns: "
+               "thick places 2-9 mm long, about 10 mm apart along a yarn, up to 1.8x the "
+               "yarn between them (mean diameter 0.55 mm: the yarns press together, a few "
+               "small holes where two thin places cross); flax is spun with a low Z twist",
         look="an uneven, slubby grid of natural-coloured yarns with a dry, low lustre"),
     Fabric(
-        name="silk-shantung", title="Silk shantung", structure="woven", pattern="plain", repeat=8,
-        texels_per_thread=8,
-        ends_per_cm=60, picks_per_cm=26, yarn_diameter_mm=(0.17, 0.4), slub=0.25,
+        name="silk-shantung", title="Silk shantung", structure="woven", pattern="plain", repeat=(32, 16),
+        texels_per_thread=4,
+        ends_per_cm=60, picks_per_cm=26, yarn_diameter_mm=(0.17, 0.4),
+        slub=(0.0, 0.7), slub_length_mm=(2.0, 6.0), slub_spacing_mm=6.0, slub_tone=1.2,
         fibre_twist_deg=0.0, inclination_deg=23.0, profile_exponent=3.0,
         warp_color=(0.62, 0.08, 0.12), weft_color=(0.85, 0.55, 0.12),
         roughness=0.15, thickness=3.0, specular_albedo=0.7, specular_transmittance=0.08,
         diffuse_albedo=0.2, diffuse_transmittance=0.04,
         sheen_color=(0.9, 0.8, 0.6), sheen_roughness=0.5, sheen_thickness=0.05,
         source="plain weave of fine filament silk warp and thick, slubbed (dupion) weft, "
-               "~150 x 65 threads/inch; 'shot' warp and weft of two colours; twist 0 and "
+               "~150 x 65 threads/inch, the weft's slubs 2-6 mm long, about 6 mm apart, up to "
+               "1.7x the yarn between them; 'shot' warp and weft of two colours; twist 0 and "
                "warp/weft inclination 50/23 degrees from Irawan & Marschner 2012's silk shantung",
         look="crosswise slubs and a colour that turns from the warp's to the weft's with the light"),
     Fabric(
@@ -334,6 +379,10 @@ FABRICS: dict[str, Fabric] = {f.name: f for f in (
         source="2x2 rib knit of worsted-weight wool (sweater cuffs), ~15 wales x 18 courses per inch",
         look="raised vertical ribs and a strong fuzzy rim where the cloth turns away"),
 )}
+
+
+#: Number fields that also take a (warp, weft) or (across, down) pair.
+_PAIR_FIELDS = ("slub", "repeat")
 
 
 @functools.lru_cache(maxsize=16)
@@ -383,9 +432,12 @@ def load_fabric_file(path: str | os.PathLike) -> Fabric:
         reference = getattr(base, key) if base is not None else fields[key].default
         if isinstance(value, list):
             value = tuple(value)
-        if isinstance(reference, (int, float)) and not isinstance(reference, bool) and (
+        pair_ok = key in _PAIR_FIELDS and isinstance(value, tuple) and len(value) == 2 and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+        if isinstance(reference, (int, float)) and not isinstance(reference, bool) and not pair_ok and (
                 isinstance(value, bool) or not isinstance(value, (int, float))):
-            raise ParameterError(f"fabric file {path}: field {key!r} must be a number, got {value!r}")
+            kind = "a number or a pair of numbers" if key in _PAIR_FIELDS else "a number"
+            raise ParameterError(f"fabric file {path}: field {key!r} must be {kind}, got {value!r}")
         values[key] = value
     try:
         return dataclasses.replace(base, **values) if base is not None else Fabric(**values)

@@ -28,6 +28,11 @@ Peirce / Leaf loop models, not a quote of the paper):
   front: the purl bump). Hence on loop i of stitch j: legs at +sigma(i,j) d, sinkers at
   -sigma d, and the head at -sigma(i-1, j) d; between stitches of different kinds (rib,
   seed, garter) the profile blends smoothly (C1, cosine/sine blends over quarter periods).
+* Rib relief: a rib's purl wales lie behind its knit wales (the fabric draws together,
+  the knit wales stand proud). Each wale j is offset in depth by
+  o_j = rib_depth * yarn_width * (m_j - mean m) / 2, m_j the mean of sigma down the wale;
+  the offset is the wale's own over the loop's head and legs and blends to the next wale's
+  across each sinker along a half sine (C1), like the profile.
 * Rasterising: for every texel and every course whose band (|y| <= h + r) contains it, the
   nearest point of that course's centreline is found (initial guess from a precomputed table
   over one stitch period, then Newton steps on the analytic curve); distance dist in the
@@ -46,8 +51,9 @@ Everything is a periodic function of (u, v) sampled at texel centres: the tile i
 
 Approximations: yarns are round, rigid tubes that may interpenetrate (at the default
 yarn_width neighbouring wales' legs overlap in projection; the higher surface wins), with no
-flattening where they press together; the fabric does not curl or fold (the purl wales of a
-rib do not recede, garter courses are not compressed); the nearest-point search can settle
+flattening where they press together; the fabric does not curl or fold (garter courses are
+not compressed, and a rib's purl wales recede by ``rib_depth`` but its knit wales do not
+close over them); the nearest-point search can settle
 on a slightly farther local minimum on a few texels where two branches are almost equally
 near a texel at the yarn's edge (inside tight arcs), which shifts the tangent there.
 """
@@ -147,8 +153,9 @@ def _guess_table(curve: _Curve, ext: float) -> tuple[np.ndarray, float, int]:
     return table, step_y, ny
 
 
-def _depth(tl, sig, sig_above, sig_left, sig_right, d):
-    """Centreline depth z and dz/dT at local parameter tl in [0, 2pi) (module docstring)."""
+def _depth(tl, sig, sig_above, sig_left, sig_right, d, off=0.0, off_left=0.0, off_right=0.0):
+    """Centreline depth z and dz/dT at local parameter tl in [0, 2pi) (module docstring);
+    ``off*``: the wale offsets (rib relief) of this stitch's wale and its neighbours'."""
     head = (tl >= 0.5 * math.pi) & (tl < 1.5 * math.pi)
     right = tl >= 1.5 * math.pi
     # Head/leg quarter periods [pi/2, 3pi/2): legs at +sig d, head at -sig_above d.
@@ -162,14 +169,22 @@ def _depth(tl, sig, sig_above, sig_left, sig_right, d):
     sr = np.where(right, sig_right, sig)
     z_sink = d * (-0.5 * (sl + sr) * np.cos(2.0 * s) + 0.5 * (sr - sl) * np.sin(s))
     dz_sink = d * ((sl + sr) * np.sin(2.0 * s) + 0.5 * (sr - sl) * np.cos(s))
-    return np.where(head, z_head, z_sink), np.where(head, dz_head, dz_sink)
+    # Wale offset: the wale's own over the head and legs, blended across each sinker along
+    # a half sine (C1) to the neighbouring wale's.
+    ol = np.where(right, off, off_left)
+    orr = np.where(right, off_right, off)
+    o_sink = 0.5 * (ol + orr) + 0.5 * (orr - ol) * np.sin(s)
+    do_sink = 0.5 * (orr - ol) * np.cos(s)
+    z = np.where(head, z_head + off, z_sink + o_sink)
+    return z, np.where(head, dz_head, dz_sink + do_sink)
 
 
 # ---------------------------------------------------------------- the generator
 def knit_maps(pattern: Any, resolution: int | tuple[int, int] = 256, *,
               yarn_width: float = 0.45, loop_aspect: float = 0.8, loop_height: float = 1.5,
               leg_tilt_deg: float = 25.0, yarn_height: float | None = None,
-              fibre_twist_deg: float = 30.0, wale_spacing_mm: float = 1.0) -> ClothMaps:
+              fibre_twist_deg: float = 30.0, wale_spacing_mm: float = 1.0,
+              rib_depth: float = 1.0) -> ClothMaps:
     """Build the maps of one seamless tile of a weft-knitted fabric (geometry: module doc).
 
     Args:
@@ -190,6 +205,11 @@ def knit_maps(pattern: Any, resolution: int | tuple[int, int] = 256, *,
         fibre_twist_deg: fibre angle to the yarn axis in degrees, [-90, 90]; > 0 is an S
             twist, < 0 a Z twist (as in woven maps).
         wale_spacing_mm: physical wale spacing, > 0, only for ``meta['tile_size_mm']``.
+        rib_depth: how far the purl wales of a rib lie behind its knit wales / yarn width,
+            in [0, 4]: each wale is offset in depth by rib_depth * yarn_width * (its mean
+            stitch kind, +1 knit to -1 purl, minus the tile's mean) / 2, so a k x p rib's
+            knit wales stand rib_depth yarn widths proud of its purl wales, and patterns
+            whose wales all mix knit and purl alike (jersey, garter, seed) are unchanged.
 
     Returns ClothMaps; yarn ids are course indices (-1 in holes); albedo is the linear colour
     of the visible stitch; meta holds the parameters, the stitches, ``tile_aspect`` and
@@ -206,6 +226,7 @@ def knit_maps(pattern: Any, resolution: int | tuple[int, int] = 256, *,
                                                   lo_open=True, hi_open=False)
     twist = real_in("fibre_twist_deg", fibre_twist_deg, -90.0, 90.0, False, False)
     mm = real_in("wale_spacing_mm", wale_spacing_mm, 0.0, math.inf, True, True)
+    rib = real_in("rib_depth", rib_depth, 0.0, 4.0, False, False)
     aspect = nc * a / nw
     H, W = tile_resolution(resolution, aspect, (nc, nw), MIN_TEXELS_PER_STITCH, ("courses", "wales"))
     psi = math.radians(twist)
@@ -224,6 +245,8 @@ def knit_maps(pattern: Any, resolution: int | tuple[int, int] = 256, *,
     table, step_y, ny = _guess_table(curve, ext)
 
     sig = 2.0 * stitches.astype(np.float64) - 1.0  # +1 knit, -1 purl
+    wale_kind = sig.mean(axis=0)                    # +1 a knit wale, -1 a purl wale
+    wale_off = 0.5 * rib * w * (wale_kind - wale_kind.mean())
     rgb = srgb_to_linear(pat.stitch_colors())      # (nc, nw, 3)
 
     # Texel centres in wale units; fx/jc: position within / index of the wale column.
@@ -266,7 +289,8 @@ def knit_maps(pattern: Any, resolution: int | tuple[int, int] = 256, *,
         kk = (kr % nc)[:, None]
         ka = ((kr - 1) % nc)[:, None]
         z, dz = _depth(tl, sig[kk, j], sig[ka, j], sig[kk, (j - 1) % nw],
-                       sig[kk, (j + 1) % nw], d)
+                       sig[kk, (j + 1) % nw], d, wale_off[j], wale_off[(j - 1) % nw],
+                       wale_off[(j + 1) % nw])
         surf = np.where(d2 < r * r, z + np.sqrt(np.maximum(r * r - d2, 0.0)), -np.inf)
 
         cur = best_h[rows]
@@ -282,7 +306,7 @@ def knit_maps(pattern: Any, resolution: int | tuple[int, int] = 256, *,
         near_dz[rows] = np.where(near, dz, near_dz[rows])
 
     yarn = np.isfinite(best_h)
-    floor = -(d + r)
+    floor = -(d + r) + float(wale_off.min())
     height = np.where(yarn, best_h, floor) / nw    # tile widths
 
     # Fibre tangent of the visible yarn; untwisted axis of the nearest course in holes.
@@ -316,6 +340,7 @@ def knit_maps(pattern: Any, resolution: int | tuple[int, int] = 256, *,
         "fibre_twist_deg": twist,
         "twist": "S" if twist > 0 else ("Z" if twist < 0 else "none"),
         "wale_spacing_mm": mm,
+        "rib_depth": rib,
         "stitch_colors": rgb.tolist(),
     }
     return ClothMaps(tangent=tangent, normal=height_normal(height, 1.0 / W, aspect / H),

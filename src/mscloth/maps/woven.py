@@ -78,6 +78,17 @@ def _twisted_tangent(along: np.ndarray, across: np.ndarray, slope: np.ndarray, s
     return t, axis
 
 
+def _pair(name: str, value: Any, lo: float, hi: float, lo_open: bool = False) -> tuple[float, float]:
+    """A number in the interval for both yarns, or a (warp, weft) pair of them."""
+    if isinstance(value, (tuple, list, np.ndarray)) and len(value) == 2:
+        a, b = value
+    elif isinstance(value, (tuple, list, np.ndarray)):
+        raise ParameterError(f"{name} must be a number or a (warp, weft) pair, got {value!r}")
+    else:
+        a = b = value
+    return (real_in(name, a, lo, hi, lo_open, False), real_in(name, b, lo, hi, lo_open, False))
+
+
 def _as_draft(pattern: Any) -> Draft:
     return pattern if isinstance(pattern, Draft) else Draft(validate_drawdown(pattern))
 
@@ -140,6 +151,47 @@ def float_heights(over: np.ndarray, arch: float) -> np.ndarray:
     return out
 
 
+def slub_factors(count: int, period_mm: float, amplitude: float, pos_mm: np.ndarray, *,
+                 length_mm: tuple[float, float] = (2.0, 8.0), spacing_mm: float = 12.0,
+                 seed: Any = 0, bumps: bool = False):
+    """Diameter / mean diameter of ``count`` slubby yarns at positions ``pos_mm`` along
+    them, shape (count, len(pos_mm)): periodic with ``period_mm`` (the tile's length along
+    the yarns), so a tile of them is seamless.
+
+    Each yarn carries slubs, thick places a few mm long, at random along it: their number
+    is Poisson with mean ``period_mm / spacing_mm``, their centres uniform, their lengths
+    uniform in ``length_mm``; a slub's diameter rises along a raised cosine (C1) to
+    ``1 + amplitude`` times the yarn's diameter between slubs (overlapping slubs take the
+    larger). Each yarn is then scaled so that its mean diameter along the period is 1: the
+    stated diameter is the mean one, thin places between slubs included. ``seed`` fixes the
+    draw (any numpy seed). ``bumps``: also return the slub profile itself, 0 between slubs
+    and 1 at a slub's peak, as a second array."""
+    pos = np.asarray(pos_mm, dtype=np.float64)
+    if amplitude == 0.0:
+        return (np.ones((count, pos.size)), np.zeros((count, pos.size))) if bumps else np.ones((count, pos.size))
+    rng = np.random.default_rng(seed)
+    lo, hi = length_mm
+    fine = (np.arange(2048) + 0.5) * (period_mm / 2048)
+    out = np.empty((count, pos.size))
+    profile = np.empty((count, pos.size))
+    for k in range(count):
+        n = rng.poisson(period_mm / spacing_mm)
+        centres = rng.uniform(0.0, period_mm, n)
+        lengths = rng.uniform(lo, hi, n)
+
+        def slubs(p):
+            b = np.zeros(p.shape)
+            for c, length in zip(centres, lengths):
+                half = 0.5 * min(length, period_mm)
+                d = np.abs((p - c + 0.5 * period_mm) % period_mm - 0.5 * period_mm)
+                b = np.maximum(b, np.where(d < half, 0.5 + 0.5 * np.cos(np.pi * d / half), 0.0))
+            return b
+
+        profile[k] = slubs(pos)
+        out[k] = (1.0 + amplitude * profile[k]) / np.mean(1.0 + amplitude * slubs(fine))
+    return (out, profile) if bumps else out
+
+
 def _ply_tangent(axis: np.ndarray, n_y: np.ndarray, along_mm: np.ndarray, across_mm: np.ndarray,
                  side: float, diameter: np.ndarray, mean_spacing: float, ply_count: int,
                  beta: float, psi: float) -> tuple[np.ndarray, np.ndarray]:
@@ -164,11 +216,62 @@ def _ply_tangent(axis: np.ndarray, n_y: np.ndarray, along_mm: np.ndarray, across
     return t / np.linalg.norm(t, axis=-1, keepdims=True), q
 
 
+def _yarns(centres, spacing, diam, amp, level, cross_centres, period_across: float,
+           period_along: float, across: np.ndarray, along: np.ndarray, factors: np.ndarray,
+           profile: np.ndarray, slubby: bool, bulge) -> dict:
+    """The visible yarn of one family (warp ends as columns: ``across`` = x, ``along`` = y;
+    the weft's is the transpose) at every texel, (len(along), len(across)) arrays: its
+    thread index, offset from its centre (mm), local width, s = offset / half-width (|s| <= 1
+    on the yarn), centreline slope, surface height and slub profile (0 between slubs, 1 at
+    a slub's peak). ``level``: centreline / A at each (crossing, thread); ``factors``,
+    ``profile``: (threads, len(along)) slub diameter factors and profile.
+
+    Even yarns fill at most their own band (width = min(diameter, spacing)). Slubby yarns
+    may spread over their neighbours' bands, up to their local diameter (at most to the
+    neighbours' centres): each texel then
+    takes the highest of its own thread and the two beside it, so a slub shows wider where
+    it lies over its neighbours and they narrow beside it."""
+    n = len(centres)
+    j, dx = _threads(centres, spacing, across)                          # (W,)
+    k0, k1, w, dw = _crossings(cross_centres, period_along, along)      # (H,)
+    best = None
+    for shift in ((0, -1, 1) if slubby and n > 1 else (0,)):
+        jj = (j + shift) % n
+        off = across - centres[jj]
+        off = off - period_across * np.round(off / period_across)       # periodic, (W,)
+        off2 = np.broadcast_to(off[None, :], (len(along), len(across)))
+        f = factors[jj].T                                                # (H, W)
+        cap = 2.0 * spacing[jj] if slubby else spacing[jj]   # slubs: at most to the neighbours' centres
+        width = np.minimum(diam[jj][None, :] * f, cap[None, :])
+        s_ = off2 / (0.5 * width)
+        a = amp[jj][None, :]
+        h0 = a * level[k0[:, None], jj[None, :]]
+        h1 = a * level[k1[:, None], jj[None, :]]
+        centre = h0 + (h1 - h0) * w[:, None]
+        slope = (h1 - h0) * dw[:, None]
+        surf = centre + bulge(a * f, s_)
+        on = np.abs(s_) <= 1.0
+        cand = {"thread": np.broadcast_to(jj[None, :], s_.shape), "offset": off2, "width": width,
+                "s": s_, "slope": slope, "surface": np.where(on, surf, -np.inf), "raw": surf,
+                "slub": profile[jj].T}
+        if best is None:
+            best = cand
+        else:
+            win = cand["surface"] > best["surface"]
+            best = {k: np.where(win, cand[k], best[k]) for k in best}
+    on_any = np.isfinite(best["surface"])
+    best["surface"] = np.where(on_any, best["surface"], best.pop("raw"))
+    best.pop("raw", None)
+    return best
+
+
 def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
                yarn_width: float | None = None, gap_fraction: float | None = None,
                yarn_height: float = 0.35, profile_exponent: float = 2.0,
                fibre_twist_deg: float = 30.0, ply_count: int = 1, ply_twist_deg: float = 30.0,
-               warp_colors: Any = None, weft_colors: Any = None, float_arch: float = 0.0) -> ClothMaps:
+               warp_colors: Any = None, weft_colors: Any = None, float_arch: float = 0.0,
+               slub: Any = 0.0, slub_length_mm: tuple[float, float] = (2.0, 8.0),
+               slub_spacing_mm: float = 12.0, slub_seed: int = 0, slub_tone: float = 1.0) -> ClothMaps:
     """Build the maps of one seamless tile of a woven fabric (geometry: module docstring).
 
     Args:
@@ -195,6 +298,15 @@ def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
             before the float to the one after (:func:`float_heights`), so its fibres tilt
             through every angle up to the yarn's inclination, as the spines of real floats
             do (Irawan & Marschner 2012). Single crossings (plain weave) are unchanged.
+        slub: slubby yarns, >= 0, or a (warp, weft) pair: each yarn thickens at slubs
+            along it to 1 + slub times its diameter between them (:func:`slub_factors`,
+            mean diameter kept), with its width (at most its spacing), its cross-section's
+            height and so the gap, height and normal maps; 0: even yarns.
+        slub_length_mm: (shortest, longest) slub, mm, 0 < shortest <= longest.
+        slub_spacing_mm: mean distance between slubs along a yarn, mm, > 0.
+        slub_seed: an int fixing where the slubs are.
+        slub_tone: the yarn's albedo at a slub's peak / between slubs, in [0.5, 2] (clipped
+            to albedo 1): raised slubs catch more light than the model's height alone gives.
 
     Yarn ids: warp end j -> j, weft pick i -> n_warp + i, gap -> -1. Heights are in units of
     the tile width; ``meta['tile_size_mm']`` is the tile's (width, height) in millimetres.
@@ -210,10 +322,19 @@ def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
         yarn_width = 1.0 - math.sqrt(g)
     if yarn_width is not None:
         w = real_in("yarn_width", yarn_width, 0.0, 1.0, lo_open=True, hi_open=False)
-        warp_width, weft_width = w * draft.warp_spacing, w * draft.weft_spacing
+        warp_diam, weft_diam = w * draft.warp_spacing, w * draft.weft_spacing
     else:
-        warp_width = np.minimum(draft.warp_thickness, draft.warp_spacing)
-        weft_width = np.minimum(draft.weft_thickness, draft.weft_spacing)
+        warp_diam, weft_diam = np.asarray(draft.warp_thickness), np.asarray(draft.weft_thickness)
+    warp_width = np.minimum(warp_diam, draft.warp_spacing)
+    weft_width = np.minimum(weft_diam, draft.weft_spacing)
+    slub_warp, slub_weft = _pair("slub", slub, 0.0, 4.0)
+    slub_lo, slub_hi = _pair("slub_length_mm", slub_length_mm, 0.0, math.inf, lo_open=True)
+    if slub_lo > slub_hi:
+        raise ParameterError(f"slub_length_mm must be (shortest, longest), got {slub_length_mm!r}")
+    slub_gap = real_in("slub_spacing_mm", slub_spacing_mm, 0.0, math.inf, True, True)
+    tone = real_in("slub_tone", slub_tone, 0.5, 2.0, False, False)
+    if isinstance(slub_seed, bool) or not isinstance(slub_seed, Integral):
+        raise ParameterError(f"slub_seed must be an integer, got {slub_seed!r}")
     yh = real_in("yarn_height", yarn_height, 0.0, 2.0, lo_open=True, hi_open=False)
     p_exp = real_in("profile_exponent", profile_exponent, 1.0, 16.0, False, False)
     twist = real_in("fibre_twist_deg", fibre_twist_deg, -90.0, 90.0, False, False)
@@ -239,38 +360,37 @@ def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
     def bulge(amp, s):
         return amp * np.clip(1.0 - np.abs(s) ** p_exp, 0.0, None) ** (1.0 / p_exp)
 
+    # Slubs: each yarn's diameter / its mean along it, (H, W) for the visible thread of
+    # each row band (warp: along v) and column band (weft: along u). A slub widens the
+    # yarn up to its spacing and raises its cross-section; the centreline keeps the mean
+    # yarn's crimp.
+    slub_kw = dict(length_mm=(slub_lo, slub_hi), spacing_mm=slub_gap)
+    f_warp, b_warp = slub_factors(n_warp, height_mm, slub_warp, y, seed=[slub_seed, 0], bumps=True,
+                                  **slub_kw)                                         # (ends, H)
+    f_weft, b_weft = slub_factors(n_weft, width_mm, slub_weft, x, seed=[slub_seed, 1], bumps=True,
+                                  **slub_kw)                                         # (picks, W)
     # Warp end j: column band, centreline interpolated along v between weft crossings.
-    j, dx = _threads(warp_centre, draft.warp_spacing, x)                 # (W,)
-    s_warp = dx / (0.5 * warp_width[j])
-    i0, i1, wv, dwv = _crossings(weft_centre, height_mm, y)              # (H,)
-    a_w = amp_warp[j][None, :]
-    h0 = a_w * warp_level[i0[:, None], j[None, :]]
-    h1 = a_w * warp_level[i1[:, None], j[None, :]]
-    centre_warp = h0 + (h1 - h0) * wv[:, None]
-    slope_warp = (h1 - h0) * dwv[:, None]
-    surf_warp = centre_warp + bulge(amp_warp[j], s_warp)[None, :]
+    warp = _yarns(warp_centre, draft.warp_spacing, warp_diam, amp_warp, warp_level,
+                  weft_centre, width_mm, height_mm, x, y, f_warp, b_warp, slub_warp > 0.0, bulge)
+    # Weft pick i: row band; the weft is over exactly where the warp is under. The same
+    # construction with u and v swapped.
+    weft = {k: v.T for k, v in _yarns(weft_centre, draft.weft_spacing, weft_diam, amp_weft,
+                                      weft_level.T, warp_centre, height_mm, width_mm, y, x, f_weft,
+                                      b_weft, slub_weft > 0.0, bulge).items()}
+    j, dx, warp_w2d, s_warp = warp["thread"], warp["offset"], warp["width"], warp["s"]
+    slope_warp, surf_warp = warp["slope"], warp["surface"]
+    i, dy, weft_w2d, s_weft = weft["thread"], weft["offset"], weft["width"], weft["s"]
+    slope_weft, surf_weft = weft["slope"], weft["surface"]
 
-    # Weft pick i: row band; the weft is over exactly where the warp is under.
-    i, dy = _threads(weft_centre, draft.weft_spacing, y)                 # (H,)
-    s_weft = dy / (0.5 * weft_width[i])
-    j0, j1, wu, dwu = _crossings(warp_centre, width_mm, x)               # (W,)
-    a_f = amp_weft[i][:, None]
-    g0 = a_f * weft_level[i[:, None], j0[None, :]]
-    g1 = a_f * weft_level[i[:, None], j1[None, :]]
-    centre_weft = g0 + (g1 - g0) * wu[None, :]
-    slope_weft = (g1 - g0) * dwu[None, :]
-    surf_weft = centre_weft + bulge(amp_weft[i], s_weft)[:, None]
-
-    in_warp = np.broadcast_to((np.abs(s_warp) <= 1.0)[None, :], (H, W))
-    in_weft = np.broadcast_to((np.abs(s_weft) <= 1.0)[:, None], (H, W))
+    in_warp = np.abs(s_warp) <= 1.0
+    in_weft = np.abs(s_weft) <= 1.0
     warp_vis = in_warp & (~in_weft | (surf_warp >= surf_weft))
     weft_vis = in_weft & ~warp_vis
     yarn = warp_vis | weft_vis
 
     x_axis = np.array([1.0, 0.0, 0.0])
     y_axis = np.array([0.0, 1.0, 0.0])
-    s_warp_2d = np.broadcast_to(s_warp[None, :], (H, W))
-    s_weft_2d = np.broadcast_to(s_weft[:, None], (H, W))
+    s_warp_2d, s_weft_2d = s_warp, s_weft
     t_warp, axis_warp = _twisted_tangent(y_axis, x_axis, slope_warp, s_warp_2d, psi)
     t_weft, axis_weft = _twisted_tangent(x_axis, y_axis, slope_weft, s_weft_2d, psi)
 
@@ -279,11 +399,9 @@ def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
         z = np.array([0.0, 0.0, 1.0])
         for name, axis, s2d, along, across, across_vec, along_vec, length, diam in (
                 ("warp", axis_warp, s_warp_2d, np.broadcast_to(y[:, None], (H, W)),
-                 np.broadcast_to(dx[None, :], (H, W)), x_axis, y_axis, height_mm / n_weft,
-                 np.broadcast_to(warp_width[j][None, :], (H, W))),
+                 dx, x_axis, y_axis, height_mm / n_weft, warp_w2d),
                 ("weft", axis_weft, s_weft_2d, np.broadcast_to(x[None, :], (H, W)),
-                 np.broadcast_to(dy[:, None], (H, W)), y_axis, x_axis, width_mm / n_warp,
-                 np.broadcast_to(weft_width[i][:, None], (H, W)))):
+                 dy, y_axis, x_axis, width_mm / n_warp, weft_w2d)):
             sc = np.clip(s2d, -1.0, 1.0)[..., None]
             n_y = sc * across_vec + np.sqrt(1.0 - sc * sc) * z
             n_y /= np.linalg.norm(n_y, axis=-1, keepdims=True)
@@ -298,20 +416,24 @@ def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
         surf_warp = surf_warp + relief_warp
         surf_weft = surf_weft + relief_weft
 
-    floor = -2.0 * max(amp_warp.max(), amp_weft.max())
+    floor = -2.0 * max(amp_warp.max(), amp_weft.max())  # below the thin places' undersides
     height_mm_map = np.where(warp_vis, surf_warp, np.where(weft_vis, surf_weft, floor))
     height = height_mm_map / width_mm             # tile-width units
 
     # Gap texels: the nearer yarn's axis (a valid unit vector; the gap map masks it).
-    beyond_warp = np.abs(dx)[None, :] - 0.5 * warp_width[j][None, :]
-    beyond_weft = np.abs(dy)[:, None] - 0.5 * weft_width[i][:, None]
+    beyond_warp = np.abs(dx) - 0.5 * warp_w2d
+    beyond_weft = np.abs(dy) - 0.5 * weft_w2d
     gap_axis = np.where((beyond_warp <= beyond_weft)[..., None], axis_warp, axis_weft)
     tangent = np.where(warp_vis[..., None], t_warp,
                        np.where(weft_vis[..., None], t_weft, gap_axis))
 
-    yarn_id = np.where(warp_vis, j[None, :], np.where(weft_vis, n_warp + i[:, None], -1))
-    albedo = np.where(warp_vis[..., None], warp_rgb[j][None, :, :],
-                      np.where(weft_vis[..., None], weft_rgb[i][:, None, :], 0.0))
+    yarn_id = np.where(warp_vis, j, np.where(weft_vis, n_warp + i, -1))
+    # Slubs stand proud of the cloth and catch more light than the thin places beside
+    # them, an occlusion the maps' height does not give the fibre-level BSDF: slub_tone.
+    tone_warp = 1.0 + (tone - 1.0) * warp["slub"]
+    tone_weft = 1.0 + (tone - 1.0) * weft["slub"]
+    albedo = np.where(warp_vis[..., None], np.minimum(1.0, warp_rgb[j] * tone_warp[..., None]),
+                      np.where(weft_vis[..., None], np.minimum(1.0, weft_rgb[i] * tone_weft[..., None]), 0.0))
 
     meta = {
         "generator": "woven",
@@ -327,6 +449,11 @@ def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
         "ply_count": int(ply_count),
         "ply_twist_deg": float(ply_twist_deg),
         "float_arch": arch,
+        "slub": [slub_warp, slub_weft],
+        "slub_length_mm": [slub_lo, slub_hi],
+        "slub_spacing_mm": slub_gap,
+        "slub_seed": int(slub_seed),
+        "slub_tone": tone,
         "warp_colors": np.asarray(warp_rgb).tolist(),
         "weft_colors": np.asarray(weft_rgb).tolist(),
     }
@@ -335,4 +462,4 @@ def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
                      albedo=albedo, meta=meta)
 
 
-__all__ = ["woven_maps", "srgb_to_linear"]
+__all__ = ["slub_factors", "woven_maps", "srgb_to_linear"]
