@@ -324,14 +324,19 @@ def _exact_yarn(bsdf, x0, y0, x1, y1):
     return np.array(sats.integral(q, bsdf.footprint_data.GAP)) / ((x1 - x0) * (y1 - y0))
 
 
-def test_gap_transmission_of_a_footprint_is_its_gap_lobe():
+def test_gap_transmission_of_a_footprint_is_its_gap_lobe(monkeypatch):
     """Shadow rays crossing multi-scale cloth see T_sheen^2 (1 - I), I the yarn coverage of
     the footprint over the box the footprint BSDF shades (its corners rounded to whole
     texels by the shading point's hash), or below 8 texels, where some lanes are shaded
     fibre level, of the point's texel: at every lane exactly the BSDF's own gap lobe, in
     [0, T_sheen^2], zero for a gap-free footprint (dividing the rounded box's yarn by the
     exact area, then clipping, gave a gap-free 2.3-texel footprint 0.09), and over the
-    random roundings the exact footprint's fraction."""
+    random roundings the exact footprint's fraction. The blend between fibre-level and
+    footprint shading is set to 2-8 texels here (the default, 16-32, would shade the
+    small boxes this test needs fibre level only)."""
+    from mscloth.bsdf.footprint_estimator import FootprintEstimator
+    monkeypatch.setattr(FootprintEstimator, "POINT_TEXELS", 2.0)
+    monkeypatch.setattr(FootprintEstimator, "FOOTPRINT_TEXELS", 8.0)
     bsdf = mi.load_dict(dict(CLOTH, visibility=False))
     n = 256
     rng = np.random.default_rng(9)

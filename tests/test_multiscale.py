@@ -304,8 +304,8 @@ def test_footprint_probes_tile_the_pixel_parallelogram(a, shear):
     """The probes of a pixel's parallelogram (edges (a, 0) and (shear a, a) texels): slices
     of it, each shaded as the box of its own area and centre. Together they have the
     parallelogram's area and cover almost all of it (their boxes cut the slices' slanted ends,
-    as far as they reach beyond them), exactly the rectangle where it is not sheared; each
-    probe's centre lies on the pixel's centre line."""
+    as far as they reach beyond them), exactly the rectangle where it is not sheared; the
+    probes' centres are symmetric about the pixel's centre (CELLS x CELLS or more cells)."""
     bsdf = mi.load_dict(BASE)
     uv = [0.3, 0.55]
     m = 64
@@ -329,12 +329,12 @@ def test_footprint_probes_tile_the_pixel_parallelogram(a, shear):
         assert probe_area >= a * a * (1 - 1e-4)
     if shear == 0.0:  # axis-aligned: pieces of the rectangle itself
         assert covered == 1.0
-    # Centres on the line through the pixel's centre along the sliced edge.
+    # The cells' centres: a grid symmetric about the pixel's centre, inside the parallelogram.
     centres = 0.5 * (boxes[:, :2] + boxes[:, 2:]) - c
-    edges = np.array([[a, 0.0], [shear * a, a]])
-    cross = [centres[:, 0] * e[1] - centres[:, 1] * e[0] for e in edges]
-    on_a, on_b = (np.abs(c_) <= 1e-3 * a * a for c_ in cross)
-    assert on_a.all() or on_b.all()
+    np.testing.assert_allclose(centres.mean(axis=0), 0.0, atol=1e-3 * a)
+    inv = np.linalg.inv(np.array([[a, shear * a], [0.0, a]]))
+    st = centres @ inv.T
+    assert np.all(np.abs(st) < 0.5), st
 
 
 @pytest.mark.parametrize("a,shear", [(10.0, 0.8), (6.0, 2.5)])
@@ -414,12 +414,16 @@ def test_packed_visibility_reads_the_table(dv):
     np.testing.assert_allclose(got, expected, atol=1e-6)
 
 
-def test_footprint_means_are_means_and_lobe_choices_a_distribution():
+def test_footprint_means_are_means_and_lobe_choices_a_distribution(monkeypatch):
     """Footprints of 1-5 texels anywhere, sheared or not: the SAT means of the rounded box
     are averages (yarn coverage and cluster shares in [0, 1], the shares summing to the
     coverage) and the sampling mixture's lobe probabilities are >= 0 and sum to 1. Means
     normalised by the exact area instead read 0.54-1.62 for a gap-free footprint of 2.3
-    texels, and the gap lobe's probability reached -39."""
+    texels, and the gap lobe's probability reached -39. (Boxes this small are the cells of
+    larger footprints; the blend is set to start at 1 texel so that they are shaded whole.)"""
+    from mscloth.bsdf.footprint_estimator import FootprintEstimator
+    monkeypatch.setattr(FootprintEstimator, "POINT_TEXELS", 1.0)
+    monkeypatch.setattr(FootprintEstimator, "FOOTPRINT_TEXELS", 2.0)
     bsdf = mi.load_dict(BASE)
     rng = np.random.default_rng(12)
     n = 20000

@@ -91,11 +91,9 @@ class ClothShading:
         fibre = self.fibre
         x, y = fr.x, fr.y
         if fp is not None:
-            offset = fr.pixel_offset
-            if offset is not None:
+            if fp.point_xi is not None:
                 # The sample's own point of the pixel: brute force, exactly.
-                known = (offset.x >= -0.5) & (offset.y >= -0.5)
-                xi = dr.select(known, mi.Point2f(offset.x + 0.5, offset.y + 0.5), xi)
+                xi = dr.select(fp.point_xi.x >= 0.0, fp.point_xi, xi)
             x, y = self.estimator.point_in_footprint(fr, fp, xi)
         pt = fibre.read_visibility(fibre.texel(fr, x, y))
         probs = fibre.lobe_probabilities(pt, enabled)

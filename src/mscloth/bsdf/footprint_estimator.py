@@ -36,6 +36,12 @@ class Footprint:
     box: tuple
     #: (ax, ay, bx, by): the parallelogram's edges (zero where not finite).
     edges: tuple
+    #: The camera sample's place in its probe's cell, uniform in [0,1)^2 (None, or
+    #: negative, where the sample's pixel offset is not known).
+    within: mi.Point2f | None = None
+    #: The fibre-level branch's point of the parallelogram, in [0,1)^2: the camera
+    #: sample's own (None, or negative, where its pixel offset is not known).
+    point_xi: mi.Point2f | None = None
 
 
 @dataclass
@@ -104,10 +110,13 @@ class FootprintEstimator:
     The tuning constants below are class attributes, so that experiments
     (``bench/common.py``'s ``--attr NAME=VALUE``) change them for every cloth BSDF."""
 
-    #: Footprint area (texels) below which shading is fibre level, above which it is the
-    #: footprint's; linear blend between (docs/decisions.md).
-    POINT_TEXELS = 2.0
-    FOOTPRINT_TEXELS = 8.0
+    #: Footprint area (texels) below which shading is fibre level (at the camera sample's
+    #: own point: brute force), above which it is the footprint's; linear blend between.
+    #: Under a stratified pixel sampler at 16 spp, point samples beat the footprint up to
+    #: 1-2 texels per sample (satin near: squared bias 1.7e-4 -> 1.8e-5, noise per sample
+    #: 0.024 -> 0.017; docs/performance-log.md L24).
+    POINT_TEXELS = 16.0
+    FOOTPRINT_TEXELS = 32.0
     #: Most probes (slices) across a footprint (more: boxes that fit long turned slices
     #: better, more variance between them). 8 left satin-plane's squared bias at
     #: 3.9e-4 / 3.6e-4 (middle / far), 16 at 6e-5 / 2.6e-5 for 11% / 34% more noise per
@@ -115,9 +124,12 @@ class FootprintEstimator:
     MAX_PROBES = 16
     #: Least number of cells along each edge (of 2 texels or more) of the parallelogram,
     #: probes being cells: 2 halves the bias of turned footprints (their edges blurred
-    #: over smaller cells) but doubles the noise under an independent sampler (satin:
-    #: bias^2 1.8e-4 -> 1.2e-4 far, noise per sample 0.047 -> 0.091; docs/performance-log.md L15).
-    CELLS = 1
+    #: over smaller cells); under a stratified pixel sampler at 16 spp for 3-7% more noise
+    #: (satin: bias^2 2.4e-4 / 1.7e-4 -> 5.1e-5 / 1.1e-4 middle / far; performance log L24).
+    CELLS = 2
+    #: ... but only where fewer slices than this cover the footprint (long thin ones
+    #: towards a horizon keep one cell across: 3-5x the noise there for no bias gained).
+    CELLS_BELOW = 16
 
     # The footprint BSDF is sampled as a mixture: a lobe chosen by the footprint's
     # averages (so the gap, diffuse and specular shares match the footprint form), the
@@ -136,9 +148,16 @@ class FootprintEstimator:
     #: grid over the shaded box.
     RESIDUAL_GRID = 2
 
+    #: Place the residual texels by the camera sample's place in its probe's cell where it
+    #: is known (else by the shading hash), so that a stratified pixel sampler stratifies
+    #: them between a pixel's samples as it does the probes (satin: noise per sample -3 to
+    #: -11%). The corners' rounding stays the hash's: drawn from the same place it made the
+    #: texels' positions depend on the rounded box, a bias (performance log L24).
+    STRATIFY = True
+
     #: The tuning constants above (a cached calibration, measured with them, keys on them).
-    TUNING = ("POINT_TEXELS", "FOOTPRINT_TEXELS", "MAX_PROBES", "CELLS", "DEFENSIVE_COSINE", "DEFENSIVE_MIN_SIDE",
-              "CONSISTENT_VISIBILITY_CV", "RESIDUAL_GRID")
+    TUNING = ("POINT_TEXELS", "FOOTPRINT_TEXELS", "MAX_PROBES", "CELLS", "CELLS_BELOW", "DEFENSIVE_COSINE", "DEFENSIVE_MIN_SIDE",
+              "CONSISTENT_VISIBILITY_CV", "RESIDUAL_GRID", "STRATIFY")
 
     def __init__(self, fibre: FibreBSDF):
         self.fibre = fibre
@@ -195,6 +214,7 @@ class FootprintEstimator:
         # False, and the symbolic if traces the fibre-level branch alone.
         use = (p_use > 0.0) & (u < p_use)
         one_number = True  # u_probe alone picks the cell: along the slices, then across
+        known = point_xi = None
         if u_probe is None:
             u_probe = dr.minimum(u * dr.select(p_use > 0.0, dr.rcp(p_use), 0.0), 0.99999994)
             u_probe_a = u_probe_b = u_probe
@@ -204,8 +224,11 @@ class FootprintEstimator:
                 # stratifies each pixel axis), a pixel's samples spread evenly over
                 # its slices, and the probes' variance between them mostly cancels.
                 known = (offset.x >= -0.5) & (offset.y >= -0.5)
-                u_probe_a = dr.select(known, dr.clip(offset.x + 0.5, 0.0, 0.99999994), u_probe)
-                u_probe_b = dr.select(known, dr.clip(offset.y + 0.5, 0.0, 0.99999994), u_probe)
+                x = dr.clip(offset.x + 0.5, 0.0, 0.99999994)
+                y = dr.clip(offset.y + 0.5, 0.0, 0.99999994)
+                point_xi = dr.select(known, mi.Point2f(x, y), mi.Point2f(-1.0, -1.0))
+                u_probe_a = dr.select(known, x, u_probe)
+                u_probe_b = dr.select(known, y, u_probe)
                 one_number = False
         else:
             u_probe_a = u_probe_b = u_probe
@@ -229,14 +252,20 @@ class FootprintEstimator:
         u_probe = dr.select(along_a, u_probe_a, u_probe_b)  # edge a: the pixel's x step
         lx, ly = dr.select(along_a, ax, bx), dr.select(along_a, ay, by)
         sx, sy = dr.select(along_a, bx, ax), dr.select(along_a, by, ay)
-        # At least CELLS cells along each edge of two texels or more.
-        n = dr.maximum(n, dr.select(dr.safe_sqrt(lx * lx + ly * ly) >= 2.0, float(self.CELLS), 1.0))
+        # At least CELLS cells along each edge of two texels or more, where the slices
+        # alone are fewer than CELLS_BELOW.
+        few = n < float(self.CELLS_BELOW)
+        n = dr.maximum(n, dr.select(few & (dr.safe_sqrt(lx * lx + ly * ly) >= 2.0), float(self.CELLS), 1.0))
         v_probe = dr.select(along_a, u_probe_b, u_probe_a)
         if one_number:  # its remainder within the slice
             v_probe = u_probe * n - dr.floor(u_probe * n)
-        m = dr.select(dr.safe_sqrt(sx * sx + sy * sy) >= 2.0, float(self.CELLS), 1.0)
+        m = dr.select(few & (dr.safe_sqrt(sx * sx + sy * sy) >= 2.0), float(self.CELLS), 1.0)
         offset = (dr.floor(u_probe * n) + 0.5) * dr.rcp(n) - 0.5
         offset_s = (dr.floor(v_probe * m) + 0.5) * dr.rcp(m) - 0.5
+        within = None
+        if known is not None:
+            within = mi.Point2f(u_probe * n - dr.floor(u_probe * n), v_probe * m - dr.floor(v_probe * m))
+            within = dr.select(known, within, mi.Point2f(-1.0, -1.0))
         cx = fr.x + dr.select(finite, offset * lx + offset_s * sx, 0.0)
         cy = fr.y + dr.select(finite, offset * ly + offset_s * sy, 0.0)
         sx, sy = sx * dr.rcp(m), sy * dr.rcp(m)
@@ -260,7 +289,7 @@ class FootprintEstimator:
         ry = dr.select(finite, dr.maximum(ry, 0.5), 0.5)
         # The point branch's parallelogram (zero where not finite: the texel at si.uv).
         edges = tuple(dr.select(finite, e, 0.0) for e in (ax, ay, bx, by))
-        return Footprint(use=use, box=(cx - rx, cy - ry, cx + rx, cy + ry), edges=edges)
+        return Footprint(use=use, box=(cx - rx, cy - ry, cx + rx, cy + ry), edges=edges, within=within, point_xi=point_xi)
 
     def point_in_footprint(self, fr: ViewFrame, fp: Footprint, xi):
         """Texel coordinates of the point ``xi`` (uniform in [0,1)^2) of the footprint's
@@ -301,6 +330,9 @@ class FootprintEstimator:
             if fp is None:
                 fp = self.footprint(si, fr, hashed[2], u_probe)
         xi_round = mi.Point2f(0.5, 0.5) if xi_round is None else xi_round
+        if self.STRATIFY and fp.within is not None:
+            known = fp.within.x >= 0.0
+            xi = dr.select(known, fp.within, xi)
         # The footprint shaded is its box with the corners rounded stochastically to
         # whole texels (expected extent: the footprint's), and every mean is the exact
         # mean over that rounded box: one SAT read per corner and channel instead of four
