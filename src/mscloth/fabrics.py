@@ -217,19 +217,14 @@ def _slub_arguments(fabric: Fabric) -> dict:
 
 def _slub_factors(fabric: Fabric, draft, samples: int):
     """(warp, weft) diameter / mean diameter along each yarn at ``samples`` points over the
-    tile, as the woven maps draw them (:func:`mscloth.maps.woven.slub_factors`)."""
-    from .maps.woven import _pair, slub_factors
+    tile, as the woven maps draw them (:func:`mscloth.maps.woven.draft_slub_factors`)."""
+    from .maps.woven import draft_slub_factors
 
-    args = _slub_arguments(fabric)
-    amp_warp, amp_weft = _pair("slub", args.pop("slub"), 0.0, 4.0)
-    seed = args.pop("slub_seed")
-    args.pop("slub_tone")
-    kw = {"length_mm": args["slub_length_mm"], "spacing_mm": args["slub_spacing_mm"]}
     width_mm, height_mm = draft.size_mm
-    along_v = (np.arange(samples) + 0.5) * (height_mm / samples)
     along_u = (np.arange(samples) + 0.5) * (width_mm / samples)
-    return (slub_factors(draft.n_warp, height_mm, amp_warp, along_v, seed=[seed, 0], **kw),
-            slub_factors(draft.n_weft, width_mm, amp_weft, along_u, seed=[seed, 1], **kw))
+    along_v = (np.arange(samples) + 0.5) * (height_mm / samples)
+    return draft_slub_factors(draft, fabric.slub, along_u, along_v, length_mm=tuple(fabric.slub_length_mm),
+                              spacing_mm=fabric.slub_spacing_mm, seed=fabric._slub_seed())
 
 
 @functools.lru_cache(maxsize=8)

@@ -216,6 +216,19 @@ def _ply_tangent(axis: np.ndarray, n_y: np.ndarray, along_mm: np.ndarray, across
     return t / np.linalg.norm(t, axis=-1, keepdims=True), q
 
 
+def draft_slub_factors(draft, slub: Any, along_u: np.ndarray, along_v: np.ndarray, *,
+                       length_mm: tuple[float, float], spacing_mm: float, seed: int, bumps: bool = False):
+    """(warp, weft) :func:`slub_factors` of a draft's yarns as the woven maps draw them: its
+    warp ends at ``along_v`` (mm down the tile) and its weft picks at ``along_u`` (mm across),
+    ``slub`` one amplitude for both or a (warp, weft) pair, each family seeded from ``seed``
+    on its own."""
+    slub_warp, slub_weft = _pair("slub", slub, 0.0, 4.0)
+    width_mm, height_mm = draft.size_mm
+    kw = dict(length_mm=length_mm, spacing_mm=spacing_mm, bumps=bumps)
+    return (slub_factors(draft.n_warp, height_mm, slub_warp, along_v, seed=[seed, 0], **kw),
+            slub_factors(draft.n_weft, width_mm, slub_weft, along_u, seed=[seed, 1], **kw))
+
+
 def _yarns(centres, spacing, diam, amp, level, cross_centres, period_across: float,
            period_along: float, across: np.ndarray, along: np.ndarray, factors: np.ndarray,
            profile: np.ndarray, slubby: bool, bulge) -> dict:
@@ -364,11 +377,10 @@ def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
     # each row band (warp: along v) and column band (weft: along u). A slub widens the
     # yarn up to its spacing and raises its cross-section; the centreline keeps the mean
     # yarn's crimp.
-    slub_kw = dict(length_mm=(slub_lo, slub_hi), spacing_mm=slub_gap)
-    f_warp, b_warp = slub_factors(n_warp, height_mm, slub_warp, y, seed=[slub_seed, 0], bumps=True,
-                                  **slub_kw)                                         # (ends, H)
-    f_weft, b_weft = slub_factors(n_weft, width_mm, slub_weft, x, seed=[slub_seed, 1], bumps=True,
-                                  **slub_kw)                                         # (picks, W)
+    # (ends, H) and (picks, W)
+    (f_warp, b_warp), (f_weft, b_weft) = draft_slub_factors(
+        draft, (slub_warp, slub_weft), x, y, length_mm=(slub_lo, slub_hi), spacing_mm=slub_gap, seed=slub_seed,
+        bumps=True)
     # Warp end j: column band, centreline interpolated along v between weft crossings.
     warp = _yarns(warp_centre, draft.warp_spacing, warp_diam, amp_warp, warp_level,
                   weft_centre, width_mm, height_mm, x, y, f_warp, b_warp, slub_warp > 0.0, bulge)
