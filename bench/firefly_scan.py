@@ -1,5 +1,6 @@
-"""Largest sample weights (f cos / pdf) of the multi-scale ``cloth`` BSDF over a grid of
-viewing directions near a tile axis and footprint sizes: where fireflies come from.
+"""Largest sample weights (f cos / pdf) and eval values (f cos at random outgoing directions)
+of the multi-scale ``cloth`` BSDF over a grid of viewing directions near a tile axis and
+footprint sizes: whether fireflies come from the BSDF itself.
 
     .venv/bin/python bench/firefly_scan.py --fabric cotton-jersey
 """
@@ -37,8 +38,13 @@ def scan(bsdf_dict: dict, n: int = 1 << 16, seed: int = 5):
                     w = np.asarray(dr.max(weight))
                     ok = np.asarray(bs.pdf) > 0
                     w = np.where(ok, w, 0.0)
+                    wo = rng.normal(size=(3, n))
+                    wo[2] = np.abs(wo[2])
+                    wo /= np.linalg.norm(wo, axis=0)
+                    f = np.asarray(dr.max(bsdf.eval(non_delta_context(), si, mi.Vector3f(*wo))))
                     rows.append((azimuth_deg, theta_deg, a_texels, rotation, float(w.max()), float(np.mean(w)),
-                                 int(np.sum(~np.isfinite(w)))))
+                                 float(f.max()), float(np.mean(f)),
+                                 int(np.sum(~np.isfinite(w)) + np.sum(~np.isfinite(f)))))
     return rows
 
 
@@ -48,9 +54,10 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     setup_mitsuba()
     rows = scan({"type": "cloth", "fabric": args.fabric, "multiscale": True})
-    print("| azimuth deg | theta deg | footprint texels | rotation | max weight | mean weight | non-finite |")
-    print("|---|---|---|---|---|---|---|")
-    for r in sorted(rows, key=lambda r: -r[4])[:20]:
+    print("| azimuth deg | theta deg | footprint texels | rotation | max weight | mean weight | max eval "
+          "| mean eval | non-finite |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for r in sorted(rows, key=lambda r: -max(r[4], r[6]))[:12]:
         print("| " + " | ".join(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r) + " |")
     return 0
 
