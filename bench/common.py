@@ -48,11 +48,16 @@ def parse_settings(items) -> dict:
 def attribute_owner(name: str):
     """The class whose attribute ``name`` an experiment sets: the footprint estimator's
     (its tuning constants, e.g. MAX_PROBES, RESIDUAL_GRID, and ``shading_hash``) if it has
-    one, else the ``cloth`` BSDF class of the active variant."""
+    one, else the lobe samplers' (FOLD_FLAKES), else the ``cloth`` BSDF class of the active
+    variant."""
     from mscloth.bsdf.footprint_estimator import FootprintEstimator
+    from mscloth.bsdf.lobe_mixture import LobeSamplers
     from mscloth.bsdf.registry import cloth_class
 
-    return FootprintEstimator if hasattr(FootprintEstimator, name) else cloth_class()
+    for owner in (FootprintEstimator, LobeSamplers):
+        if hasattr(owner, name):
+            return owner
+    return cloth_class()
 
 
 def set_class_attributes(attrs: dict) -> dict:

@@ -31,7 +31,7 @@ CASES = [(wi, TEXELS[i % len(TEXELS)]) for i, wi in enumerate(DIRECTIONS)]
 CHI2_SETTINGS = dict(sample_dim=3, seed=7, sample_count=1_000_000, res=100, ires=16)
 # Sidak correction over every chi2 run in this file, so the file as a whole keeps a 1%
 # false-rejection rate.
-CHI2_TEST_COUNT = 6 + 5 * 3
+CHI2_TEST_COUNT = 6 + 5 * 3 + 2
 
 
 def run_chi2(wi, uv, ctx, bsdf=CLOTH):
@@ -66,3 +66,56 @@ def test_chi2_detects_a_wrong_pdf():
     test = mi.chi2.ChiSquareTest(domain=mi.chi2.SphericalDomain(), sample_func=sample_func,
                                  pdf_func=pdf_func, **CHI2_SETTINGS)
     assert not test.run(significance_level=0.01, test_count=CHI2_TEST_COUNT)
+
+
+#: Shiny satin: strong specular reflection, weak transmission (the built-in satin scenes'),
+#: where a flake sample below the surface is folded up with probability 0.88.
+SATIN = {"type": "cloth", "pattern": "satin-8-3", "roughness": 0.12, "thickness": 2.0,
+         "specular_albedo": 0.8, "specular_transmittance": 0.05, "diffuse_albedo": 0.1,
+         "diffuse_transmittance": 0.02, "sheen_thickness": 0.1}
+
+
+@pytest.mark.parametrize("theta,phi", [(30.0, 10.0), (80.0, 95.0)])
+def test_chi2_folded_flake_sampling_of_shiny_cloth(theta, phi):
+    uv = [0.3, 0.55]
+    sample_func, pdf_func = cloth_chi2_adapter(SATIN, direction(theta, phi), uv, non_delta_context())
+    test = mi.chi2.ChiSquareTest(domain=mi.chi2.SphericalDomain(), sample_func=sample_func,
+                                 pdf_func=pdf_func, **CHI2_SETTINGS)
+    assert test.run(significance_level=0.01, test_count=2), test.messages
+
+
+def sample_weights(bsdf, theta_deg: float, n: int, seed: int = 3):
+    """Mean-channel sample weights of ``n`` lanes at a point on a warp float, viewed from
+    ``theta_deg`` at random azimuths: under uniform light, one bounce's estimate."""
+    import numpy as np
+    rng = np.random.default_rng(seed)
+    t, phi = np.radians(theta_deg), rng.random(n) * 2.0 * np.pi
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.wi = mi.Vector3f(np.sin(t) * np.cos(phi), np.sin(t) * np.sin(phi), np.full(n, np.cos(t)))
+    si.uv = mi.Point2f(0.3, 0.55)
+    _, weight = bsdf.sample(non_delta_context(), si, mi.Float(rng.random(n)),
+                            mi.Point2f(rng.random(n), rng.random(n)))
+    return np.asarray(weight, dtype=np.float64).mean(axis=0)
+
+
+@pytest.mark.parametrize("theta", [30.0, 70.0])
+def test_folded_flakes_cut_the_weight_variance_of_shiny_cloth(theta):
+    """Unfolded, about half of a fibre's flake reflections land below the surface, where
+    the satin transmits 0.05 against 0.8 above: wasted samples. Folded, the weights' mean
+    is the same (5 standard errors) and their relative variance at most 0.8 times
+    (measured: 0.39 -> 0.28 at 30 degrees, 0.54 -> 0.36 at 70; what remains is the
+    variance within the lobes)."""
+    import numpy as np
+    from mscloth.bsdf.lobe_mixture import LobeSamplers
+
+    n = 200_000
+    folded = sample_weights(mi.load_dict(SATIN), theta, n)
+    try:
+        LobeSamplers.FOLD_FLAKES = False
+        unfolded = sample_weights(mi.load_dict(SATIN), theta, n)
+    finally:
+        LobeSamplers.FOLD_FLAKES = True
+    se = np.sqrt((folded.var() + unfolded.var()) / n)
+    assert abs(folded.mean() - unfolded.mean()) <= 5.0 * se
+    relvar = [w.var() / w.mean() ** 2 for w in (folded, unfolded)]
+    assert relvar[0] <= 0.8 * relvar[1], relvar

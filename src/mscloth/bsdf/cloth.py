@@ -180,6 +180,7 @@ def make_cloth_class():
                 self._maps_key = table_key(self.maps, {})
             tuning = {} if self.estimator is None else {
                 name: getattr(self.estimator, name) for name in FootprintEstimator.TUNING}
+            tuning["FOLD_FLAKES"] = LobeSamplers.FOLD_FLAKES  # the share factors measure the sampler
             inputs = {"variant": mi.variant(), "build": dataclasses.asdict(self.build),
                       "tables": None if self.table_key is None else self.table_key.as_params(),
                       "params": {name: self._value(name) for name in SHADING_FLOATS},

@@ -240,13 +240,15 @@ class FibreBSDF:
             yarn_lobes *= self.visibility(pt, wo)
         value += under_fuzz * yarn_lobes
         value = dr.select(valid, value, 0.0)
-        pdf = dr.select(valid, self.samplers.pdf(p.roughness, wi, wo, probs, [t], enabled), 0.0)
+        pdf = dr.select(valid, self.samplers.pdf(p.roughness, wi, wo, probs, [t], enabled,
+                                                            self.samplers.fold_share(k, enabled)), 0.0)
         return value, pdf
 
-    def sample(self, pt: Texel, probs, enabled, sample1, sample2, active):
-        """A direction from the texel's lobe mixture: (wo, ok, component, gap_ok)."""
+    def sample(self, pt: Texel, probs, enabled, sample1, sample2, active, strata: int = 1):
+        """A direction from the texel's lobe mixture: (wo, ok, component, gap_ok);
+        ``strata`` as in :meth:`.LobeSamplers.sample`."""
         return self.samplers.sample(self.params.roughness, pt.wi, pt.tangent, probs, enabled, sample1, sample2,
-                                    active)
+                                    active, self.samplers.fold_share(pt.k, enabled), strata)
 
     def gap_value(self, fr: ViewFrame, yarn):
         """What the gap lets through straight: T_sheen(i)^2 (1 - I)."""

@@ -557,7 +557,8 @@ class FootprintEstimator:
         wi = fr.wi
         valid = (wi.z > spongecake.COS_EPSILON) & (dr.abs(wo.z) > spongecake.COS_EPSILON)
         fibre = self.fibre
-        pdf = fibre.samplers.pdf(fibre.params.roughness, wi, wo, st.probs, [t_.tangent for t_ in st.texels], enabled)
+        pdf = fibre.samplers.pdf(fibre.params.roughness, wi, wo, st.probs, [t_.tangent for t_ in st.texels], enabled,
+                                fibre.samplers.fold_share(fr.k, enabled))
         eps_c, eps_lower = st.eps_c, st.eps_lower
         eps_side = dr.select(wo.z > 0.0, eps_c - eps_lower, eps_lower)
         return dr.select(valid, (1.0 - eps_c) * pdf + eps_side * dr.abs(wo.z) * dr.inv_pi, 0.0)
@@ -578,7 +579,7 @@ class FootprintEstimator:
             tangent = dr.select(quad == q, texels[q].tangent, tangent)
         chosen = dataclasses.replace(texels[0], tangent=tangent)
 
-        wo, ok, component, gap_ok = self.fibre.sample(chosen, fp_probs, enabled, u, sample2, active)
+        wo, ok, component, gap_ok = self.fibre.sample(chosen, fp_probs, enabled, u, sample2, active, len(texels))
         wo_cos = mi.warp.square_to_cosine_hemisphere(sample2)
         # The defensive cosine side: the lower or upper part of its sample1 slice.
         lower = sample1 < st.eps_lower

@@ -54,6 +54,11 @@ def lobe_weights(k: LobeAlbedos, wi, yarn, ts, scattered, enabled, calibration) 
     return [wk * inv for wk in w]
 
 
+def _mirrored(w):
+    """``w`` mirrored through the surface plane."""
+    return mi.Vector3f(w.x, w.y, -w.z)
+
+
 @dataclass
 class LobeSamplers:
     """How the sheen and the diffuse lobes are sampled for a fuzz (sheen roughness and
@@ -61,6 +66,26 @@ class LobeSamplers:
 
     sheen: Any
     diffuse: Any
+
+    #: Whether flake samples below the surface are folded up (:meth:`fold_share`); off,
+    #: for experiments and tests, the specular lobe samples its flakes as they fall.
+    FOLD_FLAKES = True
+
+    @classmethod
+    def fold_share(cls, k: LobeAlbedos, enabled):
+        """The probability that a flake reflection which leaves below the surface is
+        mirrored above it. The specular lobes are one flake lobe scaled by
+        ``specular_albedo`` above and ``specular_transmittance`` below; a fibre's flakes
+        reflect into a cone that the surface plane cuts in two nearly equal halves, so
+        unfolded, about half the specular samples land below even where transmission is
+        weak (satin: 0.05 against 0.8). Folding a share f = (R - T) / (R + T) of them up
+        makes the density ratio below/above (1 - f) / (1 + f) = T / R, the lobes' own."""
+        if not cls.FOLD_FLAKES:
+            return 0.0
+        r = max_channel(k.specular_albedo) if enabled[SPECULAR_REFLECTION] else 0.0
+        t = max_channel(k.specular_transmittance) if enabled[SPECULAR_TRANSMISSION] else 0.0
+        total = r + t
+        return dr.select(total > 0.0, dr.maximum(r - t, 0.0) / dr.select(total > 0.0, total, 1.0), 0.0)
 
     @staticmethod
     def for_fuzz(sheen_roughness, alpha_s: float, thickness_s: float) -> LobeSamplers:
@@ -77,9 +102,10 @@ class LobeSamplers:
                 sheen_sampler = sheen.TabulatedSheenSampler.shared(alpha_s, thickness_s)
         return LobeSamplers(sheen=sheen_sampler, diffuse=diffuse)
 
-    def pdf(self, roughness, wi, wo, probs, tangents, enabled):
+    def pdf(self, roughness, wi, wo, probs, tangents, enabled, fold):
         """Density of picking a lobe by ``probs`` and sampling it, the specular lobe from
-        one of ``tangents`` chosen uniformly; validity not masked."""
+        one of ``tangents`` chosen uniformly, a share ``fold`` (:meth:`fold_share`) of its
+        samples below the surface mirrored above; validity not masked."""
         up = wo.z > 0.0
         pdf = mi.Float(0.0)
         if enabled[SHEEN]:
@@ -87,8 +113,11 @@ class LobeSamplers:
         if enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]:
             side_ok = (up & enabled[SPECULAR_REFLECTION]) | (logical_not(up) & enabled[SPECULAR_TRANSMISSION])
             spec = mi.Float(0.0)
+            wo_mirrored = _mirrored(wo)
             for t in tangents:
-                spec += spongecake.pdf_specular(wi, wo, t, roughness)
+                direct = spongecake.pdf_specular(wi, wo, t, roughness)
+                folded = spongecake.pdf_specular(wi, wo_mirrored, t, roughness)
+                spec += dr.select(up, direct + fold * folded, (1.0 - fold) * direct)
             pdf += probs[SPECULAR_REFLECTION] * dr.select(side_ok, spec * (1.0 / len(tangents)), 0.0)
         if enabled[DIFFUSE_REFLECTION] or enabled[DIFFUSE_TRANSMISSION]:
             diffuse = self.diffuse.pdf(wo)
@@ -98,9 +127,12 @@ class LobeSamplers:
                 pdf += probs[DIFFUSE_TRANSMISSION] * dr.select(up, 0.0, diffuse)
         return pdf
 
-    def sample(self, roughness, wi, tangent, probs, enabled, sample1, sample2, active):
+    def sample(self, roughness, wi, tangent, probs, enabled, sample1, sample2, active, fold, strata: int = 1):
         """One lobe picked by ``sample1`` against ``probs`` and sampled with ``sample2``
-        (the specular lobe on ``tangent``'s flakes): (wo, ok, component, gap_ok)."""
+        (the specular lobe on ``tangent``'s flakes, folded up with probability ``fold``
+        where it leaves below): (wo, ok, component, gap_ok). ``strata``: into how many
+        equal parts of the specular slot the caller already cut ``sample1`` (the fold
+        decision takes the position within one)."""
         c_sheen = probs[SHEEN]
         c_spec = c_sheen + probs[SPECULAR_REFLECTION]
         c_dr = c_spec + probs[DIFFUSE_REFLECTION]
@@ -114,6 +146,10 @@ class LobeSamplers:
                     & (sample1 < c_all) & (probs[GAP] > 0.0))
 
         wo_spec, _ = spongecake.sample_specular(wi, tangent, roughness, sample2)
+        u_spec = (sample1 - c_sheen) * strata / dr.select(probs[SPECULAR_REFLECTION] > 0.0,
+                                                           probs[SPECULAR_REFLECTION], 1.0)
+        do_fold = (wo_spec.z < 0.0) & (u_spec - dr.floor(u_spec) < fold)
+        wo_spec.z = dr.select(do_fold, -wo_spec.z, wo_spec.z)
         wo_sheen = wo_spec
         if enabled[SHEEN]:
             wo_sheen, _ = self.sheen.sample(wi, sample2)
