@@ -70,7 +70,7 @@ def test_chi2_detects_a_wrong_pdf():
 
 #: Shiny satin: strong specular reflection, weak transmission (the built-in satin scenes'),
 #: where a flake sample below the surface is folded up with probability 0.88.
-SATIN = {"type": "cloth", "pattern": "satin-8-3", "roughness": 0.12, "thickness": 2.0,
+SATIN = {"type": "cloth", "pattern": "satin-8-3", "resolution": 128, "roughness": 0.12, "thickness": 2.0,
          "specular_albedo": 0.8, "specular_transmittance": 0.05, "diffuse_albedo": 0.1,
          "diffuse_transmittance": 0.02, "sheen_thickness": 0.1}
 
