@@ -1,0 +1,64 @@
+"""Where a multi-scale sample's time goes, per scene: seconds per spp of the whole frame
+(sun and sky, 16 spp) for variants of the code, in interleaved rounds after compilation,
+against brute force (``multiscale`` false) in the same rounds. A variant that switches a
+piece off (all lanes fibre level, visibility off, fewer residual texels) prices that piece.
+
+    .venv/bin/python bench/sample_cost.py satin-plane \\
+        --variant "all fibre level: --attr POINT_TEXELS=1e9 --attr FOOTPRINT_TEXELS=2e9"
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+import numpy as np
+
+from common import set_class_attributes, setup_mitsuba
+from region_terms import parse_variant
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("scene")
+    parser.add_argument("--variant", action="append", default=[],
+                        help="'LABEL: --attr NAME=VALUE --set NAME=VALUE ...'")
+    parser.add_argument("--res", default="320x180")
+    parser.add_argument("--spp", type=int, default=16)
+    parser.add_argument("--rounds", type=int, default=5)
+    args = parser.parse_args(argv)
+    mi = setup_mitsuba()
+    from mscloth.evaluation.error_budget import LIGHTS, lit_scene
+    from mscloth.evaluation.renders import timed_render
+
+    width, height = (int(v) for v in args.res.split("x"))
+    variants = [("multi-scale", {}, {}), ("brute force", {}, {"multiscale": False})]
+    variants += [parse_variant(v) for v in args.variant]
+    scenes = []
+    for label, attrs, params in variants:
+        saved = set_class_attributes(attrs)
+        try:  # load (and calibrate) under the variant's attributes, render under them too
+            scene = lit_scene(args.scene, width, height, params.pop("multiscale", True), LIGHTS["both"], **params)
+            timed_render(scene, args.spp, 1)  # compile
+        finally:
+            set_class_attributes(saved)
+        scenes.append((label, attrs, scene))
+    seconds = {label: [] for label, _, _ in scenes}
+    for r in range(args.rounds):
+        for label, attrs, scene in scenes:
+            saved = set_class_attributes(attrs)
+            try:
+                seconds[label].append(timed_render(scene, args.spp, 100 + r).seconds / args.spp)
+            finally:
+                set_class_attributes(saved)
+    bf = np.array(seconds["brute force"])
+    print(f"| {args.scene} ({args.res}, {args.spp} spp) | s per spp (median) | / brute force (median, range) |")
+    print("|---|---|---|")
+    for label, _, _ in scenes:
+        s = np.array(seconds[label])
+        ratio = s / bf
+        print(f"| {label} | {np.median(s):.4f} | {np.median(ratio):.2f}x ({ratio.min():.2f}-{ratio.max():.2f}) |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
