@@ -14,7 +14,7 @@ import numpy as np
 from common import setup_mitsuba
 
 
-def scan(bsdf_dict: dict, n: int = 1 << 16, seed: int = 5):
+def scan(bsdf_dict: dict, n: int = 1 << 16, seed: int = 5, delta: bool = False):
     import drjit as dr
     import mitsuba as mi
 
@@ -34,7 +34,8 @@ def scan(bsdf_dict: dict, n: int = 1 << 16, seed: int = 5):
                     si.p = mi.Point3f(*(rng.uniform(0, 1, (3, n))))
                     sampler = mi.load_dict({"type": "independent"})
                     sampler.seed(seed, n)
-                    bs, weight = bsdf.sample(non_delta_context(), si, sampler.next_1d(), sampler.next_2d())
+                    ctx = mi.BSDFContext() if delta else non_delta_context()  # delta: the gaps too
+                    bs, weight = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d())
                     w = np.asarray(dr.max(weight))
                     ok = np.asarray(bs.pdf) > 0
                     w = np.where(ok, w, 0.0)
@@ -51,9 +52,12 @@ def scan(bsdf_dict: dict, n: int = 1 << 16, seed: int = 5):
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fabric", default="cotton-jersey")
+    parser.add_argument("--parallax", action="store_true", help="as the swatch's close view")
+    parser.add_argument("--delta", action="store_true", help="sample the gaps' delta lobe too")
     args = parser.parse_args(argv)
     setup_mitsuba()
-    rows = scan({"type": "cloth", "fabric": args.fabric, "multiscale": True})
+    rows = scan({"type": "cloth", "fabric": args.fabric, "multiscale": True, "parallax": args.parallax},
+                delta=args.delta)
     print("| azimuth deg | theta deg | footprint texels | rotation | max weight | mean weight | max eval "
           "| mean eval | non-finite |")
     print("|---|---|---|---|---|---|---|---|---|")

@@ -131,7 +131,7 @@ def make_cloth_class():
                 self.table_key = key
                 self.fibre.footprint_data = FootprintData(tables, with_sats=b.multiscale, with_parallax=b.parallax)
             # The footprint BSDF; before calibration, which samples it.
-            self.shading = ClothShading(self.fibre, FootprintEstimator(self.fibre) if b.multiscale else None)
+            self.shading = ClothShading(self.fibre, FootprintEstimator(self.fibre, b.roughness) if b.multiscale else None)
 
         def _calibrate(self, uv_scale, uv_scale_v):
             """Lobe selection matched to the lobes' albedos, and for footprints to the
@@ -302,6 +302,8 @@ def make_cloth_class():
                 self.build = build
                 if tables_change:
                     self._build_tables()
+                elif self.estimator is not None:
+                    self.estimator.roughness = build.roughness
                 self._calibrate(self._value("uv_scale"), self._value("uv_scale_v"))
 
         def to_string(self):

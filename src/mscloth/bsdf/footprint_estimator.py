@@ -144,11 +144,16 @@ class FootprintEstimator:
     #: tile (over whole tiles the base is exact for the latter, which varies less).
     CONSISTENT_VISIBILITY_CV = True
 
-    #: The control-variate residual's texels: one in each cell of a RESIDUAL_GRID^2
-    #: grid over the shaded box. 3 against 2: noise per sample (16 spp) -31% far on the
-    #: satin spheres, -43% / -78% middle / far on satin-plane, for +10-22% time per
-    #: sample; 4 gained little more (performance log L25).
-    RESIDUAL_GRID = 3
+    #: The control-variate residual's texels: one in each cell of a G x G grid over the
+    #: shaded box, G by the fibres' roughness: (below this roughness, G), else 1. Each
+    #: texel costs ~7% of a brute-force sample; the residual's variance is that of the
+    #: fibre-level D about its binned copy, large on shiny fibres. Roughness 0.12, 3
+    #: against 2: noise per sample (16 spp) -31% far on the satin spheres, -43% / -78%
+    #: middle / far on satin-plane, for +10-22% time; roughness 0.3 (plane), 1 against 2:
+    #: +1-25% noise for -27% time (performance log L25).
+    RESIDUAL_GRIDS = ((0.15, 3), (0.25, 2))
+    #: G for every roughness instead (experiments), or None.
+    RESIDUAL_GRID = None
 
     #: Place the residual texels by the camera sample's place in its probe's cell where it
     #: is known (else by the shading hash), so that a stratified pixel sampler stratifies
@@ -159,10 +164,13 @@ class FootprintEstimator:
 
     #: The tuning constants above (a cached calibration, measured with them, keys on them).
     TUNING = ("POINT_TEXELS", "FOOTPRINT_TEXELS", "MAX_PROBES", "CELLS", "CELLS_BELOW", "DEFENSIVE_COSINE", "DEFENSIVE_MIN_SIDE",
-              "CONSISTENT_VISIBILITY_CV", "RESIDUAL_GRID", "STRATIFY")
+              "CONSISTENT_VISIBILITY_CV", "RESIDUAL_GRIDS", "RESIDUAL_GRID", "STRATIFY")
 
-    def __init__(self, fibre: FibreBSDF):
+    def __init__(self, fibre: FibreBSDF, roughness: float):
         self.fibre = fibre
+        #: The fibres' roughness as a number (the BSDF's parameter is a live Float): it
+        #: sizes the residual grid (:meth:`residual_grid`).
+        self.roughness = roughness
         #: :class:`.lobe_calibration.LobeCalibration` of the footprint mixture's lobe
         #: choice (None: the raw proxies).
         self.calibration = None
@@ -408,6 +416,15 @@ class FootprintEstimator:
         st.eps_lower = eps_c * dr.clip(lower, self.DEFENSIVE_MIN_SIDE, 1.0 - self.DEFENSIVE_MIN_SIDE)
         return st
 
+    def residual_grid(self) -> int:
+        """G: the residual texels are G x G (RESIDUAL_GRIDS, or RESIDUAL_GRID if set)."""
+        if self.RESIDUAL_GRID is not None:
+            return int(self.RESIDUAL_GRID)
+        for below, g in self.RESIDUAL_GRIDS:
+            if self.roughness < below:
+                return g
+        return 1
+
     @staticmethod
     def _strata(g):
         """(cell x, cell y, offset x, offset y) of each residual texel: the offsets of
@@ -423,7 +440,7 @@ class FootprintEstimator:
         means cover (from ``xi``)."""
         fibre = self.fibre
         x0, y0, x1, y1 = box
-        g = self.RESIDUAL_GRID
+        g = self.residual_grid()
         texels = []
         for qx, qy, cx, cy in self._strata(g):
             sx = xi.x + cx
