@@ -177,7 +177,9 @@ def test_same_seed_same_image_whatever_order_the_loader_lists_emitters():
     """Mitsuba lists emitters in the order its parallel loader finished them; with ``all``
     each emitter draws its own sample numbers, so clothpath puts them in an order of the
     scene's own (ids) first. Loaded serially, the loader lists them in reverse insertion
-    order: two insertion orders give two emitter orders and must give one image."""
+    order: two insertion orders give two emitter orders and must give one image. A box
+    pixel filter: a wider one splats each sample into neighbouring pixels with atomic adds,
+    whose order between threads moves the last bit of a sum from run to run."""
     def light(x, colour):
         return {"type": "rectangle", "emitter": {"type": "area", "radiance": {"type": "rgb", "value": colour}},
                 "to_world": mi.ScalarTransform4f().translate([x, 0, 2]).rotate([1, 0, 0], 180).scale(0.4)}
@@ -187,7 +189,7 @@ def test_same_seed_same_image_whatever_order_the_loader_lists_emitters():
         scene = {"type": "scene", "integrator": {"type": "clothpath"},
                  "sensor": {"type": "perspective", "fov": 60,
                             "to_world": mi.ScalarTransform4f().look_at(origin=[0, -3, 3], target=[0, 0, 0], up=[0, 0, 1]),
-                            "film": {"type": "hdrfilm", "width": 16, "height": 16}},
+                            "film": {"type": "hdrfilm", "width": 16, "height": 16, "rfilter": {"type": "box"}}},
                  "floor": {"type": "rectangle", "to_world": mi.ScalarTransform4f().scale(3)}}
         scene.update((name, lights[name]) for name in names)
         loaded = mi.load_dict(scene, parallel=False)
