@@ -145,13 +145,14 @@ class FootprintEstimator:
     CONSISTENT_VISIBILITY_CV = True
 
     #: The control-variate residual's texels: one in each cell of a G x G grid over the
-    #: shaded box, G by the fibres' roughness: (below this roughness, G), else 1. Each
-    #: texel costs ~7% of a brute-force sample; the residual's variance is that of the
-    #: fibre-level D about its binned copy, large on shiny fibres. Roughness 0.12, 3
-    #: against 2: noise per sample (16 spp) -31% far on the satin spheres, -43% / -78%
-    #: middle / far on satin-plane, for +10-22% time; roughness 0.3 (plane), 1 against 2:
-    #: +1-25% noise for -27% time (performance log L25).
-    RESIDUAL_GRIDS = ((0.15, 3), (0.25, 2))
+    #: shaded box, G by the fibres' roughness: (below this roughness, G), first match;
+    #: else 2. Each texel costs ~7% of a brute-force sample; the residual's variance is
+    #: that of the fibre-level D about its binned copy, large on shiny fibres. Roughness
+    #: 0.12, 3 against 2: noise per sample (16 spp) -31% far on the satin spheres, -43% /
+    #: -78% middle / far on satin-plane, for +10-22% time. Rough cloth (0.3-0.4), 2
+    #: against 1: noise x time equal on the plane, -20 to -50% on sphere, drape and denim
+    #: (performance log L25, L27).
+    RESIDUAL_GRIDS = ((0.15, 3),)
     #: G for every roughness instead (experiments), or None.
     RESIDUAL_GRID = None
 
@@ -423,7 +424,7 @@ class FootprintEstimator:
         for below, g in self.RESIDUAL_GRIDS:
             if self.roughness < below:
                 return g
-        return 1
+        return 2
 
     @staticmethod
     def _strata(g):
