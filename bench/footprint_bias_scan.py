@@ -37,27 +37,34 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--shear", type=float, default=None, help="every footprint's shear (default: random in [-1, 1])")
     parser.add_argument("--rotate", action="store_true", help="turn each footprint by a random angle too")
+    parser.add_argument("--fabric", default=None, help="a fabric preset's cloth instead (uv_scale 1)")
+    parser.add_argument("--wo-theta", default="10,85", help="range of the outgoing directions' polar angle (degrees; "
+                        "over 90: transmission)")
     args = parser.parse_args(argv)
     mi = setup_mitsuba()
     from mscloth import validation
 
-    params = dict(SATIN, **parse_settings(args.set))
+    base = SATIN if args.fabric is None else {"type": "cloth", "fabric": args.fabric, "uv_scale": 1.0,
+                                              "uv_scale_v": 1.0}
+    params = dict(base, **parse_settings(args.set))
     bsdf = mi.load_dict(params)
+    tile = TILE if args.fabric is None else bsdf.maps.resolution[1]  # texels along u
+    wo_lo, wo_hi = (float(v) for v in args.wo_theta.split(","))
     rng = np.random.default_rng(args.seed)
     halves = [float(h) for h in args.halves.split(",")]
     rows = []
     for k in range(args.configs):
         wi = direction(rng.uniform(10, 80), rng.uniform(0, 360))
-        wo = direction(rng.uniform(10, 85), rng.uniform(0, 360))
+        wo = direction(rng.uniform(wo_lo, wo_hi), rng.uniform(0, 360))
         uv = [float(rng.random()), float(rng.random())]
         shear = float(rng.uniform(-1.0, 1.0))
         if args.shear is not None:
             shear = args.shear
         half = halves[k % len(halves)]
         rotation = float(rng.uniform(0.0, np.pi)) if args.rotate else 0.0
-        si = validation.sheared_interaction(40000, uv, half, shear, TILE, wi, rotation)
+        si = validation.sheared_interaction(40000, uv, half, shear, tile, wi, rotation)
         ms, ms_err = validation.shading_expectation(bsdf, si, wo, seed=k)
-        bf, bf_err = validation.parallelogram_brute_force(params, uv, half, shear, TILE, wi, wo, n=80000, seed=k + 100,
+        bf, bf_err = validation.parallelogram_brute_force(params, uv, half, shear, tile, wi, wo, n=80000, seed=k + 100,
                                                           rotation=rotation)
         err = float(np.hypot(ms_err, bf_err))
         rows.append((half, (ms - bf) / max(bf, 1e-9), (ms - bf) / max(err, 1e-12), err / max(bf, 1e-9), wi, wo,

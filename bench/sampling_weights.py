@@ -4,6 +4,7 @@ sky seen in a shiny sphere). Multi-scale (one footprint of ``a`` texels) against
 (a fibre-level sample at a uniform point of the same footprint).
 
     .venv/bin/python bench/sampling_weights.py            # the satin scenes' BSDF
+    .venv/bin/python bench/sampling_weights.py --fabric cotton-jersey
 """
 from __future__ import annotations
 
@@ -40,28 +41,35 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--set", action="append", default=[], help="NAME=VALUE cloth parameter")
     parser.add_argument("--n", type=int, default=1 << 17)
+    parser.add_argument("--fabric", default=None, help="a fabric preset instead (uv_scale 1: footprints in its texels)")
+    parser.add_argument("--texels", default="8,24,70,550,2200", help="footprint areas in texels")
     args = parser.parse_args(argv)
     mi = setup_mitsuba()
     from mscloth.scenes.builtin import SATIN_MAPS, scene_maps, _satin_cloth
 
-    spec = _satin_cloth(scene_maps("satin_maps", SATIN_MAPS), (0.12, 0.09, 0.05), 1.0)
+    if args.fabric:
+        spec = {"type": "cloth", "fabric": args.fabric, "uv_scale": 1.0, "uv_scale_v": 1.0}
+        tile = mi.load_dict(spec).maps.resolution[1]  # footprints in texels along u
+    else:
+        spec = _satin_cloth(scene_maps("satin_maps", SATIN_MAPS), (0.12, 0.09, 0.05), 1.0)
+        tile = SATIN_MAPS["resolution"]
     spec.update(parse_settings(args.set))
-    tile = SATIN_MAPS["resolution"]
     ms = mi.load_dict({**spec, "multiscale": True})
     bf = mi.load_dict({**spec, "multiscale": False})
-    print("| theta | azimuth | footprint texels | mean w ms | mean w bf | relvar ms | relvar bf | bf/ms |")
-    print("|---|---|---|---|---|---|---|---|")
-    for theta, phi in ((30, 0), (60, 0), (60, 45), (75, 90)):
+    print("| theta | azimuth | footprint texels | mean w ms | mean w bf | relvar ms | relvar bf | bf/ms "
+          "| max w / mean ms | max w / mean bf |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for theta, phi in ((30, 0), (60, 0), (60, 45), (75, 90), (85, 30)):
         t, p = np.radians(theta), np.radians(phi)
         wi = [float(np.sin(t) * np.cos(p)), float(np.sin(t) * np.sin(p)), float(np.cos(t))]
-        for a in (8.0, 24.0, 70.0, 550.0, 2200.0):
+        for a in (float(v) for v in args.texels.split(",")):
             uv = [0.37, 0.61]
             r = []
             for b, multiscale in ((ms, True), (bf, False)):
                 w = weights(b, args.n, uv, float(np.sqrt(a)), tile, wi, 7, multiscale)
-                r.append((w.mean(), w.var() / max(w.mean() ** 2, 1e-12)))
+                r.append((w.mean(), w.var() / max(w.mean() ** 2, 1e-12), w.max() / max(w.mean(), 1e-12)))
             print(f"| {theta} | {phi} | {a:g} | {r[0][0]:.4f} | {r[1][0]:.4f} | {r[0][1]:.3f} | {r[1][1]:.3f} "
-                  f"| {r[1][1] / max(r[0][1], 1e-9):.2f} |")
+                  f"| {r[1][1] / max(r[0][1], 1e-9):.2f} | {r[0][2]:.0f} | {r[1][2]:.0f} |")
     return 0
 
 

@@ -218,8 +218,11 @@ class FootprintEstimator:
         # Width across the long edge; a degenerate (line) footprint covers a texel's width.
         width = area * dr.select(length > 0.0, dr.rcp(length), 0.0)
         texels = dr.maximum(length, 1.0) * dr.maximum(width, 1.0)
-        p_use = dr.clip((texels - self.POINT_TEXELS) * (1.0 / (self.FOOTPRINT_TEXELS - self.POINT_TEXELS)),
-                        0.0, 1.0)
+        span = self.FOOTPRINT_TEXELS - self.POINT_TEXELS
+        if span > 0.0:
+            p_use = dr.clip((texels - self.POINT_TEXELS) * (1.0 / span), 0.0, 1.0)
+        else:  # no blend zone (experiments): a step at POINT_TEXELS
+            p_use = dr.select(texels >= self.POINT_TEXELS, 1.0, 0.0)
         p_use = dr.select(finite & (length > 0.0), p_use, 0.0)
         # (p_use > 0) first: a zero footprint of constant si.duv_dx/dy is then a literal
         # False, and the symbolic if traces the fibre-level branch alone.
@@ -365,7 +368,8 @@ class FootprintEstimator:
             return means[channel]
 
         st = FootprintState(fp=fp, q=q, inv_area=inv_area)
-        st.yarn_mean = yarn_mean = mean(fd.GAP)
+        # Clipped: float cancellation between the SAT corners leaves ~1e-9 either side.
+        st.yarn_mean = yarn_mean = dr.clip(mean(fd.GAP), 0.0, 1.0)
         inv_yarn = dr.select(yarn_mean > 1e-6, dr.rcp(yarn_mean), 0.0)
         if uniform_albedo is not None:
             st.yarn_albedo = uniform_albedo
@@ -408,7 +412,7 @@ class FootprintEstimator:
         # still helps the transmitted flake lobe (docs/performance-log.md L1).
         probs = st.probs
         yarn_share = probs[SPECULAR_REFLECTION] + probs[DIFFUSE_REFLECTION] + probs[DIFFUSE_TRANSMISSION]
-        st.eps_c = eps_c = self.DEFENSIVE_COSINE * dr.sqrt(yarn_share)
+        st.eps_c = eps_c = self.DEFENSIVE_COSINE * dr.sqrt(dr.maximum(yarn_share, 0.0))
         # Its lower (transmission) share follows the diffuse lobes' split, at least a
         # tenth on either side: at grazing angles a fixed half wasted 5% of samples.
         p_dr, p_dt = probs[DIFFUSE_REFLECTION], probs[DIFFUSE_TRANSMISSION]

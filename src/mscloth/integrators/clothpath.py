@@ -177,10 +177,13 @@ class PathState:
 
 
 def mis_weight(pdf_a, pdf_b):
-    """Power heuristic (exponent 2), 0 where undefined, detached as in Mitsuba's ``path``."""
+    """Power heuristic (exponent 2), 0 where undefined (a NaN or infinite density
+    included), detached as in Mitsuba's ``path``."""
     a2 = pdf_a * pdf_a
     total = a2 + pdf_b * pdf_b
-    w = a2 / dr.select(total > 0, total, 1.0)  # 0/0 -> 0 without raising in scalar mode
+    defined = (total > 0) & dr.isfinite(total)  # False for NaN
+    # (no 0/0 evaluated: scalar variants would raise)
+    w = dr.select(defined, a2 / dr.select(defined, total, 1.0), 0.0)
     return dr.detach(dr.select(dr.isfinite(w), w, 0.0))
 
 
