@@ -154,24 +154,28 @@ def measure_share_factors(bsdf, footprint_uv, nodes: int = 16, lanes: int = 4096
     # Inputs evaluated first, so the pass's kernel holds the sampling alone.
     dr.eval(si, s1, s2)
     bs, weight = bsdf.sample(mi.BSDFContext(), si, s1, s2)
-    dr.eval(bs.sampled_component, weight)
-    w = np.asarray(weight, dtype=np.float64).mean(axis=0).reshape(nodes, lanes)
-    comp = np.asarray(bs.sampled_component).reshape(nodes, lanes)
-    ok = np.isfinite(w) & (np.asarray(bs.pdf).reshape(nodes, lanes) > 0.0)
-    factors = np.ones((len(CALIBRATED), nodes))
-    for j in range(nodes):
-        picked = np.zeros(len(CALIBRATED))
-        for row, (_, comps) in enumerate(CALIBRATED):
-            mine = ok[j] & np.isin(comp[j], comps)
-            picked[row] = mine.sum()
-            if picked[row] >= MIN_SHARE_SAMPLES:
-                rms = np.sqrt(np.mean(w[j][mine] ** 2))
-                factors[row, j] = rms if rms > 0.0 else 1.0
-        seen = picked >= MIN_SHARE_SAMPLES
-        if seen.any():
-            # Unseen lobes keep the seen ones' mean, so only the seen ones move.
-            mean = np.sum(picked[seen] * factors[seen, j]) / picked[seen].sum()
-            factors[:, j] = np.where(seen, factors[:, j] / mean, 1.0)
+    dr.eval(bs.sampled_component, bs.pdf, weight)  # one kernel: the pdf read below too
+    w = np.asarray(weight, dtype=np.float64).mean(axis=0)
+    comp = np.asarray(bs.sampled_component)
+    ok = np.isfinite(w) & (np.asarray(bs.pdf) > 0.0)
+    # Each sample's (node, calibrated row), summed at once: counts and sums of w^2.
+    rows = len(CALIBRATED)
+    row_of = np.full(int(comp.max(initial=0)) + 1, -1)
+    for row, (_, comps) in enumerate(CALIBRATED):
+        row_of[[c for c in comps if c < row_of.size]] = row
+    row = row_of[comp]
+    keep = ok & (row >= 0)
+    cell = (np.arange(comp.size) // lanes) * rows + row
+    picked = np.bincount(cell[keep], minlength=nodes * rows).reshape(nodes, rows).T
+    w2 = np.bincount(cell[keep], weights=w[keep] ** 2, minlength=nodes * rows).reshape(nodes, rows).T
+    seen = picked >= MIN_SHARE_SAMPLES
+    rms = np.sqrt(w2 / np.maximum(picked, 1))
+    factors = np.where(seen & (rms > 0.0), rms, 1.0)
+    # Normalised per node to a picked-weighted mean of 1 over the seen lobes; unseen lobes
+    # keep the seen ones' mean, so only the seen ones move.
+    count = np.sum(np.where(seen, picked, 0), axis=0)
+    mean = np.sum(np.where(seen, picked * factors, 0.0), axis=0) / np.maximum(count, 1)
+    factors = np.where(seen, factors / np.where(count > 0, mean, 1.0), 1.0)
     return np.clip(factors, 1.0 / MAX_SHARE_FACTOR, MAX_SHARE_FACTOR)
 
 
