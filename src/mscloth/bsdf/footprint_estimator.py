@@ -368,7 +368,9 @@ class FootprintEstimator:
             return means[channel]
 
         st = FootprintState(fp=fp, q=q, inv_area=inv_area)
-        # Clipped: float cancellation between the SAT corners leaves ~1e-9 either side.
+        # Clipped: float cancellation between the SAT corners leaves ~1e-9 either side,
+        # and a negative coverage made a lobe probability negative, the defensive share's
+        # root below NaN, and so the pdf (performance log L28).
         st.yarn_mean = yarn_mean = dr.clip(mean(fd.GAP), 0.0, 1.0)
         inv_yarn = dr.select(yarn_mean > 1e-6, dr.rcp(yarn_mean), 0.0)
         if uniform_albedo is not None:
@@ -412,7 +414,7 @@ class FootprintEstimator:
         # still helps the transmitted flake lobe (docs/performance-log.md L1).
         probs = st.probs
         yarn_share = probs[SPECULAR_REFLECTION] + probs[DIFFUSE_REFLECTION] + probs[DIFFUSE_TRANSMISSION]
-        st.eps_c = eps_c = self.DEFENSIVE_COSINE * dr.sqrt(dr.maximum(yarn_share, 0.0))
+        st.eps_c = eps_c = self.DEFENSIVE_COSINE * dr.sqrt(yarn_share)
         # Its lower (transmission) share follows the diffuse lobes' split, at least a
         # tenth on either side: at grazing angles a fixed half wasted 5% of samples.
         p_dr, p_dt = probs[DIFFUSE_REFLECTION], probs[DIFFUSE_TRANSMISSION]

@@ -24,9 +24,6 @@ def lobe_proxies(k: LobeAlbedos, wi, yarn, ts, scattered, enabled) -> list:
     coverage ``yarn``, albedos ``k`` (yarn colour included), fuzz transmittance ``ts``
     towards the viewer and ``scattered``, the share of light the specular slab scatters."""
     zero = dr.zeros(mi.Float, dr.width(wi))
-    # A footprint's coverage is a difference of SAT sums: over a gap it can come out as
-    # -1e-9, and a negative probability made the defensive share's root NaN.
-    yarn = dr.clip(yarn, 0.0, 1.0)
     w = [zero] * 6
     if enabled[SHEEN]:
         w[SHEEN] = max_channel(k.sheen_color) * (1.0 - ts)

@@ -183,8 +183,8 @@ def mis_weight(pdf_a, pdf_b):
     total = a2 + pdf_b * pdf_b
     defined = (total > 0) & dr.isfinite(total)  # False for NaN
     # (no 0/0 evaluated: scalar variants would raise)
-    w = dr.select(defined, a2 / dr.select(defined, total, 1.0), 0.0)
-    return dr.detach(dr.select(dr.isfinite(w), w, 0.0))
+    w = dr.select(defined, a2 / dr.select(defined, total, 1.0), 0.0)  # in [0, 1]
+    return dr.detach(w)
 
 
 def _is_uniform(emitter):
