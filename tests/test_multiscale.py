@@ -339,7 +339,7 @@ def test_footprint_probes_tile_the_pixel_parallelogram(a, shear):
     u = (np.arange(m) + 0.5) / m
     boxes = np.unique(probe_boxes(bsdf, sheared_si(m, uv, a, shear, [0.2, 0.1, 0.97]), u), axis=0)
     n = len(boxes)
-    assert 1 <= n <= bsdf.estimator.MAX_PROBES
+    assert 1 <= n <= bsdf.estimator.MAX_PROBES * bsdf.estimator.CELLS
     rng = np.random.default_rng(8)
     s, t = rng.random(20000) - 0.5, rng.random(20000) - 0.5
     c = np.array(uv) * N_TEXELS
@@ -362,6 +362,20 @@ def test_footprint_probes_tile_the_pixel_parallelogram(a, shear):
     inv = np.linalg.inv(np.array([[a, shear * a], [0.0, a]]))
     st = centres @ inv.T
     assert np.all(np.abs(st) < 0.5), st
+
+
+def test_long_footprints_get_cells_across_on_rough_cloth_only():
+    """A footprint cut into MAX_PROBES slices keeps one cell across on shiny fibres (a
+    second multiplied satin-plane's noise) and gets CELLS across on rough ones (less edge
+    bias): twice the distinct probes there."""
+    counts = {}
+    for roughness in (0.1, 0.3):
+        bsdf = mi.load_dict(dict(BASE, roughness=roughness))
+        m = 512
+        boxes = probe_boxes(bsdf, sheared_si(m, [0.3, 0.55], 40.0, 3.0, [0.2, 0.1, 0.97]), (np.arange(m) + 0.5) / m)
+        counts[roughness] = len(np.unique(boxes, axis=0))
+    n = bsdf.estimator.MAX_PROBES
+    assert counts == {0.1: n, 0.3: n * bsdf.estimator.CELLS}, counts
 
 
 @pytest.mark.parametrize("a,shear", [(10.0, 0.8), (6.0, 2.5)])

@@ -127,9 +127,15 @@ class FootprintEstimator:
     #: over smaller cells); under a stratified pixel sampler at 16 spp for 3-7% more noise
     #: (satin: bias^2 2.4e-4 / 1.7e-4 -> 5.1e-5 / 1.1e-4 middle / far; performance log L24).
     CELLS = 2
-    #: ... but only where fewer slices than this cover the footprint (long thin ones
-    #: towards a horizon keep one cell across: 3-5x the noise there for no bias gained).
-    CELLS_BELOW = 16
+    #: ... but only where fewer slices than this cover the footprint, by the fibres'
+    #: roughness: (below this roughness, slices), first match; else always. Shiny cloth
+    #: keeps one cell across footprints cut into MAX_PROBES slices, long thin ones towards
+    #: a horizon (two: 5-20x satin-plane's noise for no bias gained); on rough cloth two
+    #: cut the probes' edge bias (denim middle / far 7x / 2.4x, sphere and drape 10-30%)
+    #: for up to 11% more noise on the sky-lit plane (performance log L24, L30, L31).
+    CELLS_BELOW_BY_ROUGHNESS = ((0.15, 16),)
+    #: The slice count for every roughness instead (experiments), or None.
+    CELLS_BELOW = None
 
     # The footprint BSDF is sampled as a mixture: a lobe chosen by the footprint's
     # averages (so the gap, diffuse and specular shares match the footprint form), the
@@ -164,7 +170,8 @@ class FootprintEstimator:
     STRATIFY = True
 
     #: The tuning constants above (a cached calibration, measured with them, keys on them).
-    TUNING = ("POINT_TEXELS", "FOOTPRINT_TEXELS", "MAX_PROBES", "CELLS", "CELLS_BELOW", "DEFENSIVE_COSINE", "DEFENSIVE_MIN_SIDE",
+    TUNING = ("POINT_TEXELS", "FOOTPRINT_TEXELS", "MAX_PROBES", "CELLS", "CELLS_BELOW", "CELLS_BELOW_BY_ROUGHNESS",
+              "DEFENSIVE_COSINE", "DEFENSIVE_MIN_SIDE",
               "CONSISTENT_VISIBILITY_CV", "RESIDUAL_GRIDS", "RESIDUAL_GRID", "STRATIFY")
 
     def __init__(self, fibre: FibreBSDF, roughness: float):
@@ -267,8 +274,8 @@ class FootprintEstimator:
         lx, ly = dr.select(along_a, ax, bx), dr.select(along_a, ay, by)
         sx, sy = dr.select(along_a, bx, ax), dr.select(along_a, by, ay)
         # At least CELLS cells along each edge of two texels or more, where the slices
-        # alone are fewer than CELLS_BELOW.
-        few = n < float(self.CELLS_BELOW)
+        # alone are fewer than cells_below().
+        few = n < float(self.cells_below())
         n = dr.maximum(n, dr.select(few & (dr.safe_sqrt(lx * lx + ly * ly) >= 2.0), float(self.CELLS), 1.0))
         v_probe = dr.select(along_a, u_probe_b, u_probe_a)
         if one_number:  # its remainder within the slice
@@ -423,14 +430,24 @@ class FootprintEstimator:
         st.eps_lower = eps_c * dr.clip(lower, self.DEFENSIVE_MIN_SIDE, 1.0 - self.DEFENSIVE_MIN_SIDE)
         return st
 
+    def _by_roughness(self, fixed, rule, otherwise):
+        """``fixed`` if set, else the value of the first (below, value) of ``rule`` whose
+        bound exceeds the fibres' roughness, else ``otherwise``."""
+        if fixed is not None:
+            return fixed
+        for below, value in rule:
+            if self.roughness < below:
+                return value
+        return otherwise
+
     def residual_grid(self) -> int:
         """G: the residual texels are G x G (RESIDUAL_GRIDS, or RESIDUAL_GRID if set)."""
-        if self.RESIDUAL_GRID is not None:
-            return int(self.RESIDUAL_GRID)
-        for below, g in self.RESIDUAL_GRIDS:
-            if self.roughness < below:
-                return g
-        return 2
+        return int(self._by_roughness(self.RESIDUAL_GRID, self.RESIDUAL_GRIDS, 2))
+
+    def cells_below(self) -> float:
+        """Slices under which a footprint gets CELLS cells across (CELLS_BELOW_BY_ROUGHNESS,
+        or CELLS_BELOW if set)."""
+        return float(self._by_roughness(self.CELLS_BELOW, self.CELLS_BELOW_BY_ROUGHNESS, float("inf")))
 
     @staticmethod
     def _strata(g):
