@@ -315,7 +315,7 @@ FABRICS: dict[str, Fabric] = {f.name: f for f in (
         look="a steep, fine twill line and a soft sheen"),
     Fabric(
         name="linen", title="Linen", structure="woven", pattern="plain", repeat=16, texels_per_thread=8,
-        ends_per_cm=20, picks_per_cm=20, yarn_diameter_mm=(0.55, 0.55),
+        ends_per_cm=20, picks_per_cm=20, yarn_diameter_mm=(0.62, 0.62),
         slub=0.8, slub_length_mm=(2.0, 9.0), slub_spacing_mm=10.0, slub_tone=1.2,
         fibre_twist_deg=-15.0, inclination_deg=28.0,
         warp_color=(0.78, 0.72, 0.60), weft_color=(0.74, 0.68, 0.56),
@@ -324,11 +324,14 @@ FABRICS: dict[str, Fabric] = {f.name: f for f in (
         sheen_color=(0.85, 0.8, 0.7), sheen_roughness=0.6, sheen_thickness=0.1,
         source="plain weave of wet-spun flax, ~50 x 50 threads/inch, irregular (slubby) yarns: "
                "thick places 2-9 mm long, about 10 mm apart along a yarn, up to 1.8x the "
-               "yarn between them (mean diameter 0.55 mm: the yarns press together, a few "
-               "small holes where two thin places cross); flax is spun with a low Z twist",
+               "yarn between them (mean diameter 0.62 mm at 0.5 mm spacing: the yarns flatten "
+               "and press together, so even two thin places crossing leave no hole; 0.55 "
+               "mm left dark pinholes); flax is spun with a low Z twist",
         look="an uneven, slubby grid of natural-coloured yarns with a dry, low lustre"),
     Fabric(
-        name="silk-shantung", title="Silk shantung", structure="woven", pattern="plain", repeat=(32, 16),
+        name="silk-shantung", title="Silk shantung", structure="woven", pattern="plain", repeat=(64, 16),
+        # The weft's slubs repeat with the tile's width: 21 mm, 3.5 slub spacings (half
+        # that lined the slubs up into arcs in the close view).
         texels_per_thread=4,
         ends_per_cm=60, picks_per_cm=26, yarn_diameter_mm=(0.17, 0.4),
         slub=(0.0, 0.7), slub_length_mm=(2.0, 6.0), slub_spacing_mm=6.0, slub_tone=1.2,

@@ -48,7 +48,7 @@ PARAMETER_DOCS: tuple[ParameterDoc, ...] = (
         "resolution", "integer", "0",
         "Texels along u when generating a pattern, in [8, 8192]. 0: 32 per thread within [128, "
         "320] texels (knits 64 per wale within [64, 320]; at least 8 per thread or wale, up to "
-        "1024); with `fabric`, the fabric's own (16 per end, 8 for linen and 5 for silk "
+        "1024); with `fabric`, the fabric's own (16 per end, 8 for linen and 4 for silk "
         "shantung, whose slubby tiles are long, twice that per wale, within [32, 512])."),
     ParameterDoc(
         "uv_scale", "float", "1.0",
