@@ -80,6 +80,9 @@ SHARE_FOOTPRINT_TEXELS = 64.0
 #: 0.039). Every pass traces the same kernel (aligned inputs, :func:`_lanes`), so passes
 #: after the first cost ~25 ms each.
 SHARE_PASSES = 12
+#: Each pass multiplies the factors by its measured ones to this power (1: the plain fixed
+#: point iteration; more steps further along the same direction).
+SHARE_RELAXATION = 1.0
 
 
 def calibrate(bsdf, proxies_at, estimator=None, texel_uv=None, nodes: int = 16, lanes: int = 1024, seed: int = 0):
@@ -97,7 +100,8 @@ def calibrate(bsdf, proxies_at, estimator=None, texel_uv=None, nodes: int = 16, 
     try:
         for k in range(SHARE_PASSES):
             estimator.calibration = calibration
-            factors = calibration.factors * measure_share_factors(bsdf, footprint_uv, nodes, 4 * lanes, seed + 1 + k)
+            factors = calibration.factors * measure_share_factors(bsdf, footprint_uv, nodes, 4 * lanes,
+                                                                  seed + 1 + k) ** SHARE_RELAXATION
             calibration = LobeCalibration(point.albedo_ratios,
                                           np.clip(factors, 1.0 / MAX_SHARE_FACTOR, MAX_SHARE_FACTOR))
     finally:
