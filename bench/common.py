@@ -33,7 +33,11 @@ def parse_value(text: str):
     try:
         return int(text)
     except ValueError:
+        pass
+    try:
         return float(text)
+    except ValueError:
+        return text
 
 
 def parse_settings(items) -> dict:
@@ -48,13 +52,14 @@ def parse_settings(items) -> dict:
 def attribute_owner(name: str):
     """The class whose attribute ``name`` an experiment sets: the footprint estimator's
     (its tuning constants, e.g. MAX_PROBES, RESIDUAL_GRID, and ``shading_hash``) if it has
-    one, else the lobe samplers' (FOLD_FLAKES), else the ``cloth`` BSDF class of the active
-    variant."""
+    one, else the lobe samplers' (FOLD_FLAKES), else the ``clothpath`` module's
+    (DEFAULT_UV_FILTER), else the ``cloth`` BSDF class of the active variant."""
     from mscloth.bsdf.footprint_estimator import FootprintEstimator
     from mscloth.bsdf.lobe_mixture import LobeSamplers
     from mscloth.bsdf.registry import cloth_class
+    from mscloth.integrators import clothpath
 
-    for owner in (FootprintEstimator, LobeSamplers):
+    for owner in (FootprintEstimator, LobeSamplers, clothpath):
         if hasattr(owner, name):
             return owner
     return cloth_class()

@@ -325,17 +325,20 @@ def test_knit_preset_tile_edges_are_like_any_wale_or_course_boundary(name):
             assert np.allclose(getattr(rolled, field), a, atol=1e-5), (field, axis)
 
 
-def test_knit_close_up_under_area_lights_matches_fibre_level_shading():
-    """The jersey's close view (the gallery's, studio rig of area lights): multi-scale
-    shading and fibre-level shading render the same mean brightness. Footprints of a few
-    texels inside the knit's gaps once had a NaN density, which clothpath's MIS turned into
-    emitter weights of their squared density: +11% overall, +125% under the rim light."""
+@pytest.mark.parametrize("fabric,view", [("cotton-jersey", "close"), ("silk-charmeuse", "arm")])
+def test_swatch_under_area_lights_matches_fibre_level_shading(fabric, view):
+    """The gallery's views (studio rig of area lights, clothpath's tent uv_filter): multi-scale
+    shading and fibre-level shading render the same mean brightness. In the jersey's close
+    view, footprints of a few texels inside the knit's gaps once had a NaN density, which
+    clothpath's MIS turned into emitter weights of their squared density: +11% overall,
+    +125% under the rim light."""
     from mscloth.loading import load_dict
     from mscloth.scenes.swatch import swatch_scene
 
     means = []
     for multiscale in (True, False):
-        scene = swatch_scene(240, 180, "cotton-jersey", "close")
+        scene = swatch_scene(240, 180, fabric, view)
+        assert scene["integrator"]["uv_filter"] == "tent"
         scene["cloth"]["bsdf"]["multiscale"] = multiscale
         image = np.array(mi.render(load_dict(scene), spp=4, seed=3))[..., :3]
         assert np.all(np.isfinite(image))

@@ -364,6 +364,34 @@ def test_footprint_probes_tile_the_pixel_parallelogram(a, shear):
     assert np.all(np.abs(st) < 0.5), st
 
 
+@pytest.mark.parametrize("pixel_filter", ["box", "tent"])
+def test_pixel_filter_places_probes_and_points(pixel_filter):
+    """Camera samples at known places in their pixel, on a stratified 64 x 64 grid: with the
+    box the probes are the 2 x 2 cells of a square footprint (offsets +-1/4 pixel: variance
+    1/16) and the fibre-level points the samples' own (variance 1/12); with clothpath's
+    ``uv_filter`` tent each probe also moves by a tent offset (variance + 1/6) and each point
+    sits at the quadratic B-spline's quantile (box x tent: 1/12 + 1/6). Means stay at the
+    pixel centre."""
+    bsdf = mi.load_dict(BASE)
+    m = 64
+    g = (np.arange(m) + 0.5) / m - 0.5
+    ox, oy = (v.ravel() for v in np.meshgrid(g, g))
+    a = 40.0
+    si = sheared_si(ox.size, [0.3, 0.55], a, 0.0, [0.2, 0.1, 0.97])
+    fr = bsdf.fibre.frame(si, True, mi.Point2f(ox, oy), pixel_filter)
+    fp = bsdf.estimator.footprint(si, fr, mi.Float(0.0))
+    x0, y0, x1, y1 = (np.asarray(v) for v in fp.box)
+    centre = np.array([0.3, 0.55]) * N_TEXELS
+    probe = np.stack([0.5 * (x0 + x1), 0.5 * (y0 + y1)], axis=1) - centre  # texels
+    point = np.stack([np.asarray(fp.point_xi.x), np.asarray(fp.point_xi.y)], axis=1) - 0.5  # pixels
+    assert np.all(np.asarray(fp.use)) and np.all(np.asarray(fp.point_known))
+    tent = 1.0 / 6.0 if pixel_filter == "tent" else 0.0
+    np.testing.assert_allclose(probe.mean(axis=0) / a, 0.0, atol=2e-3)
+    np.testing.assert_allclose(point.mean(axis=0), 0.0, atol=2e-3)
+    np.testing.assert_allclose((probe / a).var(axis=0), 1.0 / 16.0 + tent, rtol=0.02)
+    np.testing.assert_allclose(point.var(axis=0), 1.0 / 12.0 + tent, rtol=0.02)
+
+
 def test_long_footprints_get_cells_across_on_rough_cloth_only():
     """A footprint cut into MAX_PROBES slices keeps one cell across on shiny fibres (a
     second multiplied satin-plane's noise) and gets CELLS across on rough ones (less edge

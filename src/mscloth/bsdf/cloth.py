@@ -232,14 +232,15 @@ def make_cloth_class():
         def pdf(self, ctx, si, wo, active=True):
             return self.eval_pdf(ctx, si, wo, active)[1]
 
-        def eval_pdf_sample_n(self, ctx, si, wos, sample1, sample2, active=True, pixel_offset=None):
+        def eval_pdf_sample_n(self, ctx, si, wos, sample1, sample2, active=True, pixel_offset=None,
+                              pixel_filter="box"):
             """eval_pdf at every direction of ``wos`` and one sample, sharing one footprint
             state (SAT means, visibilities, the sampling mixture: all independent of the
             outgoing direction). Called by ``clothpath`` through ``dr.dispatch``, which
-            passes the camera sample's ``pixel_offset`` at first hits
-            (:meth:`.ClothShading.shade`)."""
+            passes the camera sample's ``pixel_offset`` at first hits and its
+            ``pixel_filter`` (:meth:`.ClothShading.shade`)."""
             values, pdfs, (bs, weight) = self.shading.shade(enabled_lobes(ctx), si, wos, (sample1, sample2),
-                                                            active, pixel_offset)
+                                                            active, pixel_offset, pixel_filter)
             return values, pdfs, bs, weight
 
         def eval_pdf_sample(self, ctx, si, wo, sample1, sample2, active=True):

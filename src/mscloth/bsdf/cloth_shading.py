@@ -54,18 +54,19 @@ class ClothShading:
         self.fibre = fibre
         self.estimator = estimator
 
-    def shade(self, enabled, si, wos, samples, active, pixel_offset=None):
+    def shade(self, enabled, si, wos, samples, active, pixel_offset=None, pixel_filter="box"):
         """eval_pdf at the world-frame directions ``wos`` and, if ``samples`` =
         (sample1, sample2) is given, one sample: ([values], [pdfs], (bs, weight) or ()).
         ``pixel_offset``: the sample's offset from its pixel's centre, in pixels along
         the footprint's edges si.duv_dx, si.duv_dy (each in [-1/2, 1/2); below: not
         known), which picks its probe (:meth:`.FootprintEstimator.footprint`) and
-        fibre-level point.
+        fibre-level point; ``pixel_filter``: the filter over the pixel (``box`` or ``tent``,
+        ``clothpath``'s ``uv_filter``) that places them.
 
         Footprints of a texel or more take the multi-scale branch, smaller ones the
         fibre-level one; a symbolic if, so a packet of lanes that all take one branch
         skips the other's work."""
-        fr = self.fibre.frame(si, active, pixel_offset)
+        fr = self.fibre.frame(si, active, pixel_offset, pixel_filter)
         wos = [fr.mirror(wo) for wo in wos]
         if self.estimator is None:
             values, pdfs, record = self._point_branch(si, fr, enabled, wos, samples, active)
@@ -93,7 +94,7 @@ class ClothShading:
         if fp is not None:
             if fp.point_xi is not None:
                 # The sample's own point of the pixel: brute force, exactly.
-                xi = dr.select(fp.point_xi.x >= 0.0, fp.point_xi, xi)
+                xi = dr.select(fp.point_known, fp.point_xi, xi)
             x, y = self.estimator.point_in_footprint(fr, fp, xi)
         pt = fibre.read_visibility(fibre.texel(fr, x, y))
         probs = fibre.lobe_probabilities(pt, enabled)

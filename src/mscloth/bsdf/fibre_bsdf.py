@@ -105,7 +105,7 @@ class FibreBSDF:
     # ------------------------------------------------------------------
     # Shading state: the viewer's frame, a texel
     # ------------------------------------------------------------------
-    def frame(self, si, active, pixel_offset=None) -> ViewFrame:
+    def frame(self, si, active, pixel_offset=None, pixel_filter="box") -> ViewFrame:
         """What of the shading point does not depend on the texel, in the mirrored frame
         where the viewer is above the surface."""
         p, tile = self.params, self.tile
@@ -124,7 +124,7 @@ class FibreBSDF:
             x = dr.select(flip, x, x + dx)
             y = dr.select(flip, y, y + dy)
         return ViewFrame(flip=flip, sign=sign, wi=wi, k=p.albedos(si, active), t_sheen_i=t_sheen_i, x=x, y=y,
-                         active=active, pixel_offset=pixel_offset)
+                         active=active, pixel_offset=pixel_offset, pixel_filter=pixel_filter)
 
     def texel_index(self, pos):
         """The texel (ix, iy) that nearest lookups at tile coordinates ``pos`` read

@@ -23,6 +23,7 @@ from ..lanes import logical_not, pick
 from .lobe_mixture import lobe_weights
 from .lobes import DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN, SPECULAR_REFLECTION, SPECULAR_TRANSMISSION
 from .sat_queries import RectQuery, hemisphere_bins, round_box
+from ..pixel_filter import quadratic_bspline_quantile, tent_quantile
 from .shading_state import Texel, ViewFrame
 
 
@@ -39,9 +40,11 @@ class Footprint:
     #: The camera sample's place in its probe's cell, uniform in [0,1)^2 (None, or
     #: negative, where the sample's pixel offset is not known).
     within: mi.Point2f | None = None
-    #: The fibre-level branch's point of the parallelogram, in [0,1)^2: the camera
-    #: sample's own (None, or negative, where its pixel offset is not known).
+    #: The fibre-level branch's point of the parallelogram ((1/2, 1/2): its centre): the
+    #: camera sample's own (in [0,1)^2; under a tent pixel filter, in [-1, 2)^2), where
+    #: ``point_known``; None where no pixel offset is known.
     point_xi: mi.Point2f | None = None
+    point_known: mi.Bool | None = None
 
 
 @dataclass
@@ -216,6 +219,11 @@ class FootprintEstimator:
         area: both estimate the same footprint mean, and a footprint of a few texels
         was noisier than a fibre-level sample. ``u_probe`` (default: ``u`` rescaled
         within the footprint's share) picks the probe.
+
+        Under ``clothpath``'s tent ``uv_filter`` (``fr.pixel_filter``), where the sample's
+        place in its pixel is known, the probe also moves by a tent offset of up to a pixel
+        along each edge and the fibre-level point sits at the quadratic B-spline's quantile
+        of that place: both then estimate the footprint under box x tent.
         """
         (ax, ay), (bx, by) = self.edges_texels(si)
         finite = dr.isfinite(ax) & dr.isfinite(ay) & dr.isfinite(bx) & dr.isfinite(by)
@@ -236,6 +244,7 @@ class FootprintEstimator:
         use = (p_use > 0.0) & (u < p_use)
         one_number = True  # u_probe alone picks the cell: along the slices, then across
         known = point_xi = None
+        tent = fr.pixel_filter == "tent"
         if u_probe is None:
             u_probe = dr.minimum(u * dr.select(p_use > 0.0, dr.rcp(p_use), 0.0), 0.99999994)
             u_probe_a = u_probe_b = u_probe
@@ -247,7 +256,9 @@ class FootprintEstimator:
                 known = (offset.x >= -0.5) & (offset.y >= -0.5)
                 x = dr.clip(offset.x + 0.5, 0.0, 0.99999994)
                 y = dr.clip(offset.y + 0.5, 0.0, 0.99999994)
-                point_xi = dr.select(known, mi.Point2f(x, y), mi.Point2f(-1.0, -1.0))
+                point_xi = mi.Point2f(x, y)
+                if tent:  # the point at the B-spline's quantile (stratified as the sample)
+                    point_xi = mi.Point2f(quadratic_bspline_quantile(x) + 0.5, quadratic_bspline_quantile(y) + 0.5)
                 u_probe_a = dr.select(known, x, u_probe)
                 u_probe_b = dr.select(known, y, u_probe)
                 one_number = False
@@ -286,7 +297,17 @@ class FootprintEstimator:
         within = None
         if known is not None:
             within = mi.Point2f(u_probe * n - dr.floor(u_probe * n), v_probe * m - dr.floor(v_probe * m))
-            within = dr.select(known, within, mi.Point2f(-1.0, -1.0))
+            if tent:
+                # Box x tent: the probe moves by a tent offset of up to a pixel along each
+                # edge, from the sample's place in its cell (uniform and independent of
+                # the cell: the probes stay stratified). The residual texels then take
+                # the hash: placed by the same numbers, their place in the box would
+                # depend on the box's.
+                offset = offset + dr.select(known, tent_quantile(within.x), 0.0)
+                offset_s = offset_s + dr.select(known, tent_quantile(within.y), 0.0)
+                within = None
+            else:
+                within = dr.select(known, within, mi.Point2f(-1.0, -1.0))
         cx = fr.x + dr.select(finite, offset * lx + offset_s * sx, 0.0)
         cy = fr.y + dr.select(finite, offset * ly + offset_s * sy, 0.0)
         sx, sy = sx * dr.rcp(m), sy * dr.rcp(m)
@@ -310,7 +331,8 @@ class FootprintEstimator:
         ry = dr.select(finite, dr.maximum(ry, 0.5), 0.5)
         # The point branch's parallelogram (zero where not finite: the texel at si.uv).
         edges = tuple(dr.select(finite, e, 0.0) for e in (ax, ay, bx, by))
-        return Footprint(use=use, box=(cx - rx, cy - ry, cx + rx, cy + ry), edges=edges, within=within, point_xi=point_xi)
+        return Footprint(use=use, box=(cx - rx, cy - ry, cx + rx, cy + ry), edges=edges, within=within,
+                         point_xi=point_xi, point_known=known)
 
     def point_in_footprint(self, fr: ViewFrame, fp: Footprint, xi):
         """Texel coordinates of the point ``xi`` (uniform in [0,1)^2) of the footprint's

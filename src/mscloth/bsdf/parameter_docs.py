@@ -205,8 +205,8 @@ _OUTRO = r"""
 Multi-scale shading takes the pixel footprint as the parallelogram spanned by
 ``si.duv_dx`` and ``si.duv_dy`` around ``si.uv``: cut along one edge into at most 16 slices
 (those whose bounding boxes cover least area; one for an axis-aligned rectangle), one slice
-per sample shaded whole as the box of its own area and centre. Footprints under 2 texels
-are shaded fibre level at a point drawn in the parallelogram, those over 8 texels whole,
+per sample shaded whole as the box of its own area and centre. Footprints under 16 texels
+are shaded fibre level at a point drawn in the parallelogram, those over 32 texels whole,
 and those between by one or the other, with a weight linear in the area. Direction bins of
 the tables are read with their bilinear weights (docs/architecture.md).
 

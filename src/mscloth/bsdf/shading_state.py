@@ -65,6 +65,9 @@ class ViewFrame:
     #: The camera sample's offset from its pixel centre along si.duv_dx, si.duv_dy (each
     #: in [-1/2, 1/2); below: not known); None outside ``clothpath``'s first hits.
     pixel_offset: Any = None
+    #: The filter over the pixel that places the camera sample: ``box`` (the offset is
+    #: where it lies in the pixel) or ``tent`` (``clothpath``'s ``uv_filter``: box x tent).
+    pixel_filter: str = "box"
 
     def mirror(self, wo):
         """``wo`` in the mirrored frame (where the viewer is above), or back."""

@@ -30,12 +30,15 @@ class FootprintBSDF(Protocol):
 
     footprint_shading: bool
 
-    def eval_pdf_sample_n(self, ctx, si, wos, sample1, sample2, active=True, pixel_offset=None):
+    def eval_pdf_sample_n(self, ctx, si, wos, sample1, sample2, active=True, pixel_offset=None,
+                          pixel_filter="box"):
         """``([value], [pdf], bs, weight)``: ``eval_pdf`` (times cos) at each direction of
         ``wos`` (local frame) and one ``sample``, sharing the work of one shading point.
         ``pixel_offset`` (``footprint_shading`` BSDFs only, at first hits): the camera
         sample's offset from its pixel centre in pixels, each coordinate in [-1/2, 1/2),
-        -1 where unknown: the part of the footprint the sample stands for. Must use
+        -1 where unknown: the part of the footprint the sample stands for;
+        ``pixel_filter`` (``box`` or ``tent``: ``clothpath``'s ``uv_filter``) the filter over
+        the pixel that the offset places the sample in. Must use
         ``sample1``/``sample2`` as ``sample`` would (same random-number order)."""
 
     def footprint_texels(self, si, active=True):
@@ -69,15 +72,18 @@ def has_gap_transmission(bsdf) -> bool:
     return bsdf is not None and hasattr(bsdf, "gap_transmission")
 
 
-def eval_pdf_sample_n(bsdf, ctx, si, si_centred, wos, sample1, sample2, active=True, pixel_offset=None):
+def eval_pdf_sample_n(bsdf, ctx, si, si_centred, wos, sample1, sample2, active=True, pixel_offset=None,
+                      pixel_filter="box"):
     """eval_pdf at each direction of ``wos`` and one sample: ([values], [pdfs], bs, weight).
 
     BSDFs with their own ``eval_pdf_sample_n`` (``cloth``) share the work of one shading
     point between all directions; those that shade whole footprints see ``si_centred``
-    (uv at the pixel centre on first hits) and ``pixel_offset``. Others get eval_pdf /
+    (uv at the pixel centre on first hits), ``pixel_offset`` and ``pixel_filter``. Others get eval_pdf /
     sample calls on ``si`` (one direction: eval_pdf_sample, exactly as ``path``)."""
     if shades_footprints(bsdf):
-        return bsdf.eval_pdf_sample_n(ctx, si_centred, wos, sample1, sample2, active, pixel_offset)
+        if pixel_filter == "box":  # (the argument came later: BSDFs without it still work)
+            return bsdf.eval_pdf_sample_n(ctx, si_centred, wos, sample1, sample2, active, pixel_offset)
+        return bsdf.eval_pdf_sample_n(ctx, si_centred, wos, sample1, sample2, active, pixel_offset, pixel_filter)
     if shades_n_directions(bsdf):
         return bsdf.eval_pdf_sample_n(ctx, si, wos, sample1, sample2, active)
     if len(wos) == 1:

@@ -305,3 +305,4 @@ def centred_uv(uv, duv_dx, duv_dy, ox, oy):
     """uv of the pixel centre from a sample's uv and its offset (ox, oy) in pixels."""
     return uv - duv_dx * ox - duv_dy * oy
 
+

@@ -91,7 +91,7 @@ def swatch_scene(width: int = 480, height: int = 360, fabric: str = "silk-charme
     bsdf.update(cloth)
     scene = {
         "type": "scene",
-        "integrator": {"type": "clothpath", "max_depth": 8},
+        "integrator": {"type": "clothpath", "max_depth": 8, "uv_filter": "tent"},
         "sensor": {"type": "perspective", "fov": fov, "fov_axis": "x",
                    "near_clip": 0.005, "far_clip": 100.0,
                    "to_world": T().look_at(origin=origin, target=target, up=[0, 1, 0]),
