@@ -1,15 +1,10 @@
-"""Pixel filters as quantile functions, per axis of a pixel sample: ``clothpath``'s
-``uv_filter`` places a camera sample's shading point, and the footprint estimator its probe,
-by them, so that a stratified pixel sampler stratifies the filter too."""
+"""The quadratic B-spline pixel filter as a quantile function, per axis of a pixel sample:
+``clothpath``'s tent ``uv_filter`` and the footprint estimator place a camera sample's
+shading point by it, so that a stratified pixel sampler stratifies the filter too (the
+tent's own quantile is Mitsuba's ``mi.warp.interval_to_tent``)."""
 from __future__ import annotations
 
 import drjit as dr
-
-
-def tent_quantile(u):
-    """The quantile at ``u`` in [0, 1) of the tent of radius 1 (one axis of
-    ``mi.warp.square_to_tent``)."""
-    return dr.select(u < 0.5, dr.sqrt(2.0 * u) - 1.0, 1.0 - dr.sqrt(2.0 - 2.0 * u))
 
 
 def quadratic_bspline_quantile(u):

@@ -23,7 +23,7 @@ from ..lanes import logical_not, pick
 from .lobe_mixture import lobe_weights
 from .lobes import DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN, SPECULAR_REFLECTION, SPECULAR_TRANSMISSION
 from .sat_queries import RectQuery, hemisphere_bins, round_box
-from ..pixel_filter import quadratic_bspline_quantile, tent_quantile
+from ..pixel_filter import quadratic_bspline_quantile
 from .shading_state import Texel, ViewFrame
 
 
@@ -38,7 +38,8 @@ class Footprint:
     #: (ax, ay, bx, by): the parallelogram's edges (zero where not finite).
     edges: tuple
     #: The camera sample's place in its probe's cell, uniform in [0,1)^2 (None, or
-    #: negative, where the sample's pixel offset is not known).
+    #: negative, where the sample's pixel offset is not known; None under a tent pixel
+    #: filter, which spends it on the probe's offset).
     within: mi.Point2f | None = None
     #: The fibre-level branch's point of the parallelogram ((1/2, 1/2): its centre): the
     #: camera sample's own (in [0,1)^2; under a tent pixel filter, in [-1, 2)^2), where
@@ -303,8 +304,8 @@ class FootprintEstimator:
                 # the cell: the probes stay stratified). The residual texels then take
                 # the hash: placed by the same numbers, their place in the box would
                 # depend on the box's.
-                offset = offset + dr.select(known, tent_quantile(within.x), 0.0)
-                offset_s = offset_s + dr.select(known, tent_quantile(within.y), 0.0)
+                offset = offset + dr.select(known, mi.warp.interval_to_tent(within.x), 0.0)
+                offset_s = offset_s + dr.select(known, mi.warp.interval_to_tent(within.y), 0.0)
                 within = None
             else:
                 within = dr.select(known, within, mi.Point2f(-1.0, -1.0))

@@ -91,12 +91,13 @@ Footprint convention: the footprint of a shading point is the UV parallelogram c
      - The filter over the first hit's uv (textures and cloth; geometry stays box
        filtered by the film's ``box``). ``box``: each pixel is the average over its own
        footprint, which beats with weaves of about a pixel's period into moiré (rings,
-       fringes), in brute force as in multi-scale shading. ``tent``: the shading uv of
-       each camera sample (and the footprint's centre) moves by a tent-distributed offset
-       of up to one pixel in the pixel's uv frame, so a pixel is the footprint average
-       under box ⊗ tent, a quadratic B-spline as soft as Mitsuba's default ``gaussian``
-       (its response at 1.3 cycles per pixel, where the box keeps 20%, is under 1%). Two
-       more sampler dimensions at the first hit.
+       fringes), in brute force as in multi-scale shading. ``tent``: a pixel is the
+       footprint average under box ⊗ tent, a quadratic B-spline as soft as Mitsuba's
+       default ``gaussian`` (its response at 1.3 cycles per pixel, where the box keeps
+       20%, is under 1%): each camera sample shades the point at the B-spline's quantile
+       of its place in the pixel, and a footprint-shading BSDF moves its probe by a tent
+       offset of up to a pixel in the pixel's uv frame. Two more sampler dimensions per
+       vertex (used at the first hit where a sample's place in its pixel is not known).
    * - emitter_samples
      - integer
      - 1

@@ -304,5 +304,3 @@ def pixel_centring(scene, ray):
 def centred_uv(uv, duv_dx, duv_dy, ox, oy):
     """uv of the pixel centre from a sample's uv and its offset (ox, oy) in pixels."""
     return uv - duv_dx * ox - duv_dy * oy
-
-
