@@ -48,7 +48,7 @@ def weight_relvar(mi, dr, bsdf, theta_deg, n=200_000, footprint_texels=64.0):
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--variant", action="append", default=[], help="PASSES,RELAXATION")
+    parser.add_argument("--variant", action="append", default=[], help="PASSES,RELAXATION[,EARLY_LANES,FINAL_PASSES]")
     parser.add_argument("--angles", default="20,45,70")
     args = parser.parse_args(argv)
     mi = setup_mitsuba()
@@ -57,19 +57,21 @@ def main(argv=None) -> int:
     from mscloth.bsdf import lobe_calibration
 
     angles = [float(a) for a in args.angles.split(",")]
-    print("| cloth | passes, relaxation | " + " | ".join(f"relvar {a:g} deg" for a in angles) + " | load s |")
+    print("| cloth | passes, relaxation, early lanes, final passes | " + " | ".join(f"relvar {a:g} deg" for a in angles) + " | load s |")
     print("|---|---|" + "---|" * (len(angles) + 1))
     for name, params in CLOTHS.items():
         for spec in args.variant or ["12,1"]:
-            passes, relax = spec.split(",")
+            passes, relax, *lanes = spec.split(",")
             lobe_calibration.SHARE_PASSES, lobe_calibration.SHARE_RELAXATION = int(passes), float(relax)
+            early, final = (int(lanes[0]), int(lanes[1])) if lanes else (lobe_calibration.SHARE_LANES, int(passes))
+            lobe_calibration.SHARE_EARLY_LANES, lobe_calibration.SHARE_FINAL_PASSES = early, final
             with tempfile.TemporaryDirectory() as cache:
                 os.environ["MSCLOTH_CACHE"] = cache
                 started = time.perf_counter()
                 bsdf = mi.load_dict(params)
                 seconds = time.perf_counter() - started
                 values = [weight_relvar(mi, dr, bsdf, a) for a in angles]
-            print(f"| {name} | {passes}, {relax} | " + " | ".join(f"{v:.4f}" for v in values) + f" | {seconds:.1f} |",
+            print(f"| {name} | {spec} | " + " | ".join(f"{v:.4f}" for v in values) + f" | {seconds:.1f} |",
                   flush=True)
     return 0
 

@@ -82,7 +82,16 @@ SHARE_FOOTPRINT_TEXELS = 64.0
 SHARE_PASSES = 12
 #: Each pass multiplies the factors by its measured ones to this power (1: the plain fixed
 #: point iteration; more steps further along the same direction).
-SHARE_RELAXATION = 1.0
+SHARE_RELAXATION = 1.25
+#: Samples per node of the share passes: the last SHARE_FINAL_PASSES passes take
+#: SHARE_LANES, the ones before SHARE_EARLY_LANES: the passes after them correct their
+#: factors, so they need less precision. 8 passes at 1024 and 4 at 4096, stepping 1.25:
+#: half the samples of 12 passes at 4096 (0.5-1 s of a cold start) for the same weight
+#: variance within the seeds' spread of 3-5% (bench/calibration_passes.py; performance
+#: log L34).
+SHARE_LANES = 4096
+SHARE_EARLY_LANES = 1024
+SHARE_FINAL_PASSES = 4
 
 
 def calibrate(bsdf, proxies_at, estimator=None, texel_uv=None, nodes: int = 16, lanes: int = 1024, seed: int = 0):
@@ -100,7 +109,8 @@ def calibrate(bsdf, proxies_at, estimator=None, texel_uv=None, nodes: int = 16, 
     try:
         for k in range(SHARE_PASSES):
             estimator.calibration = calibration
-            factors = calibration.factors * measure_share_factors(bsdf, footprint_uv, nodes, 4 * lanes,
+            share_lanes = SHARE_LANES if k >= SHARE_PASSES - SHARE_FINAL_PASSES else SHARE_EARLY_LANES
+            factors = calibration.factors * measure_share_factors(bsdf, footprint_uv, nodes, share_lanes,
                                                                   seed + 1 + k) ** SHARE_RELAXATION
             calibration = LobeCalibration(point.albedo_ratios,
                                           np.clip(factors, 1.0 / MAX_SHARE_FACTOR, MAX_SHARE_FACTOR))
