@@ -314,16 +314,22 @@ def bench_compare(scenes=None, res=COMPARE_RES, budget: float = COMPARE_BUDGET,
 #: The scenes whose error the benchmark takes apart: the targets of issue 5 (plane, sphere)
 #: and of issue 20 (the shiny scenes). Not drape (~2 more minutes).
 BUDGET_SCENES = ("plane", "sphere", "satin", "satin-plane", "denim")
+#: Interleaved rounds of each region's own time per sample (~15 s per scene at 5).
+REGION_TIME_ROUNDS = 5
 
 
 def bench_error_budget(scenes=BUDGET_SCENES, res=COMPARE_RES, **kw) -> list[tuple[str, dict]]:
     """:func:`mscloth.evaluation.error_budget.error_budget` of ``scenes`` at compare's setting (``kw``:
-    its sample counts, for quick runs)."""
-    from mscloth.evaluation.error_budget import error_budget
+    its sample counts, for quick runs), each region with its own time per sample
+    (:func:`~mscloth.evaluation.error_budget.region_time`) under "time"."""
+    from mscloth.evaluation.error_budget import error_budget, region_time
 
     rows = []
     for name in scenes:
-        rows.append((name, error_budget(name, *res, quiet=True, **kw)))
+        budget = error_budget(name, *res, quiet=True, **kw)
+        for g, timing in region_time(name, *res, rounds=REGION_TIME_ROUNDS).items():
+            budget[g]["time"] = timing
+        rows.append((name, budget))
         print(f"  {name}: done", flush=True)
     return rows
 
@@ -352,9 +358,15 @@ def _summary_lines(compare_rows, budget_rows) -> list[str]:
         "[v_bf / (b^2 + v_ms / n)] / n x t_bf / t_ms (docs/design.md §4.6); the noise-only speed-up is it",
         "without the bias. Error-budget figures (next section) for the scenes in its table only.",
         "",
+        "The whole frame's time ratio is every region's in `compare`. The region's own: both",
+        "methods render only the bounding box of the region's pixels (a film crop; on the spheres",
+        "it holds floor too), 16 spp, interleaved, median of 5 rounds (lowest-highest); the last",
+        "column is the noise-only speed-up at that ratio: what the region would gain rendered alone.",
+        "",
         "| scene | region | speed-up | bias^2, multi-scale | noise per sample: multi-scale / brute force "
-        "| time per sample ms: multi-scale / brute force | noise-only speed-up |",
-        "|---|---|---|---|---|---|---|",
+        "| time per sample ms: multi-scale / brute force | noise-only speed-up "
+        "| region's own time ratio | noise-only speed-up at it |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for name, result in compare_rows:
         budget = budgets.get(name)
@@ -369,8 +381,13 @@ def _summary_lines(compare_rows, budget_rows) -> list[str]:
                 only = f"{noise_only_speedup(b['noise'], ratio):.2f}x"
             else:
                 bias = noise = only = "not measured"
+            own = own_only = "not measured"
+            if budget is not None and "time" in budget[g]:
+                t = budget[g]["time"]
+                own = f"{t['ratio']:.2f} ({min(t['ratios']):.2f}-{max(t['ratios']):.2f})"
+                own_only = f"{noise_only_speedup(budget[g]['noise'], t['ratio']):.2f}x"
             lines.append(f"| {name} | {g} | {r['speedup']:.2f}x | {bias} | {noise} | {t_ms * 1e3:.1f} / "
-                         f"{t_bf * 1e3:.1f} | {only} |")
+                         f"{t_bf * 1e3:.1f} | {only} | {own} | {own_only} |")
     return lines
 
 

@@ -5,6 +5,9 @@ piece off (all lanes fibre level, visibility off, fewer residual texels) prices 
 
     .venv/bin/python bench/sample_cost.py satin-plane \\
         --variant "all fibre level: --attr POINT_TEXELS=1e9 --attr FOOTPRINT_TEXELS=2e9"
+
+``--region near|middle|far`` renders only the bounding box of that region's pixels (a film
+crop), so that the time per sample is the region's own rather than the whole frame's.
 """
 from __future__ import annotations
 
@@ -25,19 +28,26 @@ def main(argv=None) -> int:
     parser.add_argument("--res", default="320x180")
     parser.add_argument("--spp", type=int, default=16)
     parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--region", choices=("near", "middle", "far"), help="time this region's bounding box only")
     args = parser.parse_args(argv)
     mi = setup_mitsuba()
     from mscloth.evaluation.error_budget import LIGHTS, lit_scene
     from mscloth.evaluation.renders import timed_render
 
     width, height = (int(v) for v in args.res.split("x"))
+    crop = None
+    if args.region:
+        from mscloth.evaluation.error_budget import region_crops
+        crop = region_crops(args.scene, width, height)[args.region]
+        print(f"{args.region}: crop x {crop[0]} y {crop[1]}, {crop[2]}x{crop[3]}")
     variants = [("multi-scale", {}, {}), ("brute force", {}, {"multiscale": False})]
     variants += [parse_variant(v) for v in args.variant]
     scenes = []
     for label, attrs, params in variants:
         saved = set_class_attributes(attrs)
         try:  # load (and calibrate) under the variant's attributes, render under them too
-            scene = lit_scene(args.scene, width, height, params.pop("multiscale", True), LIGHTS["both"], **params)
+            scene = lit_scene(args.scene, width, height, params.pop("multiscale", True), LIGHTS["both"],
+                              crop=crop, **params)
             timed_render(scene, args.spp, 1)  # compile
         finally:
             set_class_attributes(saved)
@@ -51,7 +61,8 @@ def main(argv=None) -> int:
             finally:
                 set_class_attributes(saved)
     bf = np.array(seconds["brute force"])
-    print(f"| {args.scene} ({args.res}, {args.spp} spp) | s per spp (median) | / brute force (median, range) |")
+    where = f", {args.region} region's box" if args.region else ""
+    print(f"| {args.scene} ({args.res}{where}, {args.spp} spp) | s per spp (median) | / brute force (median, range) |")
     print("|---|---|---|")
     for label, _, _ in scenes:
         s = np.array(seconds[label])

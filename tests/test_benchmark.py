@@ -21,6 +21,8 @@ def region(speedup, spp_bf_curve):
 BUDGET = {"noise": {"multiscale": {"sun": 0.01, "sky": 0.05, "both": 0.04},
                     "bruteforce": {"sun": 0.2, "sky": 0.1, "both": 0.12}},
           "bias": {"multiscale": 1e-3, "bruteforce": 1e-6}}
+#: A region's own time per sample (its crop rendered alone): ratio 1.5, rounds 1.4-1.7.
+TIME = {"multiscale": 0.015, "bruteforce": 0.01, "ratio": 1.5, "ratios": [1.4, 1.5, 1.7]}
 
 
 def test_results_page_has_every_table_and_the_split_of_the_speed_up(tmp_path):
@@ -33,7 +35,7 @@ def test_results_page_has_every_table_and_the_split_of_the_speed_up(tmp_path):
                   1024, table_rows=[(512, 32, 0, 10.0, 1078.0, 1028.0), (512, 32, 64, 17.0, 115.0, 65.0),
                                     (256, 16, 0, 1.4, 77.0, 65.0)],
                   ccv_rows=[(2.0, [0.6, -0.2, 0.77], [-0.1, 0.7, 0.7], [(0.02, 0.009), (0.05, 0.009), (-0.01, 0.008)])],
-                  compare_rows=compare, budget_rows=[("plane", {g: BUDGET for g in ("near", "middle", "far")})],
+                  compare_rows=compare, budget_rows=[("plane", {g: dict(BUDGET, time=TIME) for g in ("near", "middle", "far")})],
                   call_rows=[("cloth (mscloth, multi-scale)", 0.27, 16.1), ("principled (Mitsuba)", 0.018, 1.0)],
                   call_setup="2097152 shading points")
     text = out.read_text()
@@ -55,9 +57,11 @@ def test_results_page_has_every_table_and_the_split_of_the_speed_up(tmp_path):
     assert "20x under the sun alone" in text and "3x brute force's" in text
     assert "is largest in plane's near region, 0.001 / 1e-06 (multiscale / bruteforce)" in text
     # Per scene and region: speed-up, bias, noise of both methods (sun and sky), time per
-    # sample of both (0.12 s / 16 spp, 0.04 s / 16 spp); scenes without a budget say so.
-    assert "| plane | middle | 0.40x | 0.001 | 0.04 / 0.12 | 7.5 / 2.5 | 1.00x |" in text
-    assert "| sphere | far | 0.30x | not measured | not measured | 7.5 / 2.5 | not measured |" in text
+    # sample of both (0.12 s / 16 spp, 0.04 s / 16 spp), the region's own time ratio and the
+    # noise-only speed-up at it ((0.12 / 0.04) / 1.5 = 2); scenes without a budget say so.
+    assert "| plane | middle | 0.40x | 0.001 | 0.04 / 0.12 | 7.5 / 2.5 | 1.00x | 1.50 (1.40-1.70) | 2.00x |" in text
+    assert ("| sphere | far | 0.30x | not measured | not measured | 7.5 / 2.5 | not measured | not measured "
+            "| not measured |") in text
     assert text.index("## Per scene and region") < text.index("## Why: noise per sample and bias")
 
 

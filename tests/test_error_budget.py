@@ -70,3 +70,32 @@ def test_budget_of_a_small_plane_separates_lights_and_methods(monkeypatch, tmp_p
         assert all(np.isfinite(v) for v in budget[g]["bias"].values())
     sun = [budget[g]["noise"] for g in ("near", "middle")]
     assert all(n["bruteforce"]["sun"] > n["multiscale"]["sun"] for n in sun), sun
+
+
+def test_region_time_renders_each_region_s_box_alone(monkeypatch, tmp_path):
+    """Each region's crop is the bounding box of its pixels, and region_time renders that box
+    alone (an image of the crop's size) with both methods: positive seconds, and the ratio
+    of the rounds' medians."""
+    from mscloth.evaluation.error_budget import lit_scene, region_crops, region_time
+    from mscloth.evaluation.regions import depth_and_cloth, region_masks
+    from mscloth.evaluation.renders import timed_render
+
+    monkeypatch.setenv("MSCLOTH_CACHE", str(tmp_path / "cache"))
+    masks = region_masks(*depth_and_cloth("plane", 48, 27))[0]
+    crops = region_crops("plane", 48, 27)
+    for g in REGIONS:
+        x, y, w, h = crops[g]
+        inside = np.zeros_like(masks[g])
+        inside[y:y + h, x:x + w] = True
+        assert masks[g][inside].any() and not masks[g][~inside].any()
+        # Tight: each edge row and column of the box holds a pixel of the region.
+        box = masks[g][y:y + h, x:x + w]
+        assert box[0].any() and box[-1].any() and box[:, 0].any() and box[:, -1].any()
+    x, y, w, h = crops["near"]
+    image = timed_render(lit_scene("plane", 48, 27, True, crop=crops["near"]), 1, 0).image
+    assert image.shape[:2] == (h, w)
+    timing = region_time("plane", 48, 27, spp=1, rounds=2)
+    for g in REGIONS:
+        t = timing[g]
+        assert t["multiscale"] > 0.0 and t["bruteforce"] > 0.0 and len(t["ratios"]) == 2
+        assert t["ratio"] == pytest.approx(float(np.median(t["ratios"])))

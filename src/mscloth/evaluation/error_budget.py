@@ -19,11 +19,18 @@ With noise alone (no bias), the equal-error speed-up would be
 (v_bruteforce / v_multiscale) / (time per sample, multi-scale / brute force): the bound the
 benchmark reports next to the measured speed-up.
 
+* **Time per sample, per region** (:func:`region_time`). ``compare`` times whole frames, so
+  a region's speed-up carries the whole frame's time ratio. Rendering only the bounding box
+  of a region's pixels (a film crop) gives the region's own ratio: multi-scale's extra work
+  is where the footprints are shaded whole, not everywhere.
+
 The estimators (noise per sample, squared bias) are in :mod:`.metrics`.
 """
 from __future__ import annotations
 
 import gc
+
+import numpy as np
 
 from .. import setup_mitsuba
 from .metrics import per_sample_noise, squared_bias
@@ -38,10 +45,10 @@ NOISE_SEED = 30_000
 BIAS_SEEDS = (40_000, 50_000)
 
 
-def lit_scene(name, width, height, multiscale, lights=LIGHTS["both"], max_depth=None, **cloth):
+def lit_scene(name, width, height, multiscale, lights=LIGHTS["both"], max_depth=None, crop=None, **cloth):
     """Scene ``name`` (multi-scale or brute force) with only the emitters ``lights``, the
     cloth parameters ``cloth`` and, if given, the integrator's ``max_depth`` (2: direct
-    light only), loaded."""
+    light only) and the film's ``crop`` (x, y, width, height in pixels), loaded."""
     from ..loading import load_dict
     from ..scenes.builtin import set_cloth_parameters
 
@@ -53,6 +60,9 @@ def lit_scene(name, width, height, multiscale, lights=LIGHTS["both"], max_depth=
         set_cloth_parameters(scene, **cloth)
     if max_depth is not None:
         scene["integrator"]["max_depth"] = max_depth
+    if crop is not None:
+        film = scene["sensor"]["film"]
+        film["crop_offset_x"], film["crop_offset_y"], film["crop_width"], film["crop_height"] = (int(c) for c in crop)
     return load_dict(scene)
 
 
@@ -98,6 +108,41 @@ def error_budget(name: str, width: int, height: int, noise_renders: int = NOISE_
     gc.collect()
     return {g: {"noise": {m: {light: noise[m][light][g] for light in LIGHTS} for m in noise},
                 "bias": {m: bias[m][g] for m in bias}} for g in REGIONS}
+
+
+def region_crops(name: str, width: int, height: int) -> dict:
+    """{region: (x, y, width, height)}: the bounding box in pixels of each region's pixels
+    (:func:`.regions.region_masks`); a film crop renders it alone."""
+    masks = region_masks(*depth_and_cloth(name, width, height))[0]
+    crops = {}
+    for g in REGIONS:
+        rows, cols = np.flatnonzero(masks[g].any(axis=1)), np.flatnonzero(masks[g].any(axis=0))
+        crops[g] = (int(cols[0]), int(rows[0]), int(cols[-1] + 1 - cols[0]), int(rows[-1] + 1 - rows[0]))
+    return crops
+
+
+def region_time(name: str, width: int, height: int, spp: int = NOISE_SPP, rounds: int = 3) -> dict:
+    """Per region of scene ``name``: seconds per spp of multi-scale and brute force rendering
+    the region's bounding box alone, with the scene's sun and sky (medians over ``rounds``
+    rounds, the methods interleaved in each, after a render that compiles), and the ratio
+    multi-scale / brute force of each round: {region: {"multiscale", "bruteforce": seconds,
+    "ratio": median, "ratios": [per round]}}."""
+    setup_mitsuba()
+    out = {}
+    for g, crop in region_crops(name, width, height).items():
+        scenes = {m: lit_scene(name, width, height, m == "multiscale", crop=crop) for m in ("multiscale", "bruteforce")}
+        for scene in scenes.values():
+            timed_render(scene, spp, 1)  # compile
+        seconds = {m: [] for m in scenes}
+        for r in range(rounds):
+            for m, scene in scenes.items():
+                seconds[m].append(timed_render(scene, spp, 100 + r).seconds / spp)
+        ratios = [a / b for a, b in zip(seconds["multiscale"], seconds["bruteforce"])]
+        out[g] = {"multiscale": float(np.median(seconds["multiscale"])), "bruteforce": float(np.median(seconds["bruteforce"])),
+                  "ratio": float(np.median(ratios)), "ratios": ratios}
+        del scenes
+        gc.collect()
+    return out
 
 
 def noise_only_speedup(noise: dict, seconds_ratio: float) -> float:
