@@ -199,6 +199,47 @@ def test_same_seed_same_image_whatever_order_the_loader_lists_emitters():
     np.testing.assert_array_equal(images[0], images[1])
 
 
+#: A fresh process: loads a floor under a sky and a sun, the emitters constructed in the
+#: order argv[1] names, renders, and prints the hash of its largest kernel.
+_KERNEL_HASH_SCRIPT = """
+import sys
+import drjit as dr
+import mitsuba as mi
+mi.set_variant("llvm_ad_rgb")
+import mscloth
+mscloth.register()
+emitters = {"sky": {"type": "constant", "radiance": {"type": "rgb", "value": [0.5, 0.6, 0.7]}},
+            "sun": {"type": "directional", "direction": [0.3, -0.4, -1.0]}}
+scene = {"type": "scene", "integrator": {"type": "clothpath"},
+         "sensor": {"type": "perspective", "fov": 60,
+                    "to_world": mi.ScalarTransform4f().look_at(origin=[0, -3, 3], target=[0, 0, 0], up=[0, 0, 1]),
+                    "film": {"type": "hdrfilm", "width": 8, "height": 8, "rfilter": {"type": "box"}}},
+         "floor": {"type": "rectangle", "to_world": mi.ScalarTransform4f().scale(3)}}
+scene.update((name, emitters[name]) for name in sys.argv[1].split(","))
+loaded = mi.load_dict(scene, parallel=False)
+dr.set_flag(dr.JitFlag.KernelHistory, True)
+mi.render(loaded, spp=2, seed=0)
+kernels = [k for k in dr.kernel_history() if "operation_count" in k]
+print(max(kernels, key=lambda k: k["operation_count"])["hash"])
+"""
+
+
+def test_one_kernel_whichever_emitter_the_loader_constructed_first():
+    """Mitsuba's parallel loader constructs emitters in an order that varies from run to run,
+    and an escaped ray's environment emitter entered the kernel as a literal (its index in
+    that order): two kernels, so a warm render missed Dr.Jit's kernel cache now and then.
+    clothpath reads the environment through an opaque pointer: two fresh processes that
+    construct the emitters in either order trace the same kernel. (In one process the
+    second scene's emitters get new indices, so fresh processes it is.)"""
+    import subprocess
+    import sys
+
+    hashes = [subprocess.run([sys.executable, "-c", _KERNEL_HASH_SCRIPT, order], capture_output=True, text=True,
+                             check=True, timeout=300).stdout.split()[-1]
+              for order in ("sky,sun", "sun,sky")]
+    assert hashes[0] == hashes[1]
+
+
 def test_max_depth_one_is_emitters_only():
     """max_depth=1: only directly visible emitters (the light, the sky); walls black until
     max_depth=2; max_depth=0: black and transparent."""

@@ -207,6 +207,19 @@ def mis_weight(pdf_a, pdf_b):
     return dr.detach(w)
 
 
+def opaque_environment(scene):
+    """The scene's environment emitter as an opaque one-lane pointer, or None. Mitsuba writes
+    the environment an escaped ray hits (``si.emitter(scene)``) into the kernel as a literal:
+    its index among the emitters in the order the parallel loader constructed them, which
+    changes from run to run, and with it the kernel's hash, so a warm render missed Dr.Jit's
+    kernel cache about one time in six (performance log L36)."""
+    if scene.environment() is None:
+        return None
+    env = mi.EmitterPtr(scene.environment())
+    dr.make_opaque(env)
+    return env
+
+
 def _is_uniform(emitter):
     """A ``constant`` environment: the same radiance from every direction."""
     return emitter is not None and emitter.class_name() == "ConstantBackgroundEmitter"
@@ -325,6 +338,7 @@ def make_clothpath_class():
                 emitters = [e for e in emitters if not _is_uniform(e)]
             all_emitters = self.emitter_sampling == "all" and (len(emitters) > 1 or env_by_bsdf)
             n_em = self.emitter_samples
+            env = opaque_environment(scene) if jit else None
             gap_bsdfs = gap_shadows.gap_bsdfs(scene) if self.gap_shadows else []
             gaps = bool(gap_bsdfs)
             # Offsets of camera samples from their pixel centres (perspective and
@@ -383,6 +397,8 @@ def make_clothpath_class():
                 # (scalar: a surface without emitter has none to evaluate)
                 if any_or_true(si.emitter(scene) is not None):
                     ds = mi.DirectionSample3f(scene, si=si, ref=s.prev_si)
+                    if env is not None:  # the environment by an opaque pointer (opaque_environment)
+                        ds.emitter = dr.select(si.is_valid(), si.shape.emitter(), env)
                     em_pdf = mi.Float(0.0)
                     if any_or_true(logical_not(s.prev_bsdf_delta)):  # (scalar: none after a delta bounce)
                         if all_emitters:  # no emitter selection: the emitter's own pdf
