@@ -86,9 +86,8 @@ SHARE_RELAXATION = 1.25
 #: Samples per node of the share passes: the last SHARE_FINAL_PASSES passes take
 #: SHARE_LANES, the ones before SHARE_EARLY_LANES: the passes after them correct their
 #: factors, so they need less precision. 8 passes at 1024 and 4 at 4096, stepping 1.25:
-#: half the samples of 12 passes at 4096 (0.5-1 s of a cold start) for the same weight
-#: variance within the seeds' spread of 3-5% (bench/calibration_passes.py; performance
-#: log L34).
+#: half the samples of 12 passes at 4096 for the same weight variance, within the seeds'
+#: spread (bench/calibration_passes.py; performance log L34).
 SHARE_LANES = 4096
 SHARE_EARLY_LANES = 1024
 SHARE_FINAL_PASSES = 4
