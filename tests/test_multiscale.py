@@ -231,9 +231,12 @@ def test_choose_direction_rank_keeps_tables_within_the_budget():
     assert choose_direction_rank(512, 512, 32, 0, 16)[0] == 12
 
 
-def test_a_full_table_over_max_table_mib_is_compressed():
-    """A 64^2 tile at 32^2 bins (16.5 MiB full) with a 16 MiB budget is built at rank 64."""
-    bsdf = mi.load_dict(dict(BASE, resolution=64, direction_bins=32, max_table_mib=16))
+def test_a_full_table_over_max_table_mib_is_compressed(monkeypatch, tmp_path):
+    """A 64^2 tile at 32^2 bins (16.5 MiB full) with a 16 MiB budget is built at rank 64, with
+    a warning that names the budget and what to set (an empty cache: it warns when built)."""
+    monkeypatch.setenv("MSCLOTH_CACHE", str(tmp_path / "cache"))
+    with pytest.warns(RuntimeWarning, match=r"max_table_mib 16: using rank 64.*set direction_rank or max_table_mib"):
+        bsdf = mi.load_dict(dict(BASE, resolution=64, direction_bins=32, max_table_mib=16))
     assert bsdf.maps.resolution == (64, 64)
     assert bsdf.direction_rank == 64 and bsdf.footprint_data.d_rank == 64
     roomy = mi.load_dict(dict(BASE, resolution=64, direction_bins=32, max_table_mib=17))
