@@ -88,6 +88,25 @@ def test_calibration_cuts_the_variance_of_footprint_samples():
     assert calibrated[1] <= 0.5 * raw[1], (calibrated, raw)
 
 
+def test_the_share_passes_footprint_sampler_is_the_bsdfs_sample_over_whole_footprints():
+    """The share passes sample through the footprint branch alone (a smaller kernel); over
+    footprints above FOOTPRINT_TEXELS that is bsdf.sample exactly, lane by lane."""
+    from mscloth.bsdf.lobes import enabled_lobes
+
+    bsdf = mi.load_dict(dict(TWILL, multiscale=True))
+    si, s1, s2 = lanes_at(0.6, 4096, seed=9)
+    d = 64.0 / bsdf.fibre.tile.tile_w
+    si.duv_dx = mi.Vector2f(d, 0.0)
+    si.duv_dy = mi.Vector2f(0.0, 0.5 * d)
+    ctx = mi.BSDFContext()
+    bs, weight = bsdf.sample(ctx, si, s1, s2)
+    bs2, weight2 = bsdf.shading.sample_footprint(enabled_lobes(ctx), si, s1, s2)
+    for a, b in ((bs.wo, bs2.wo), (bs.pdf, bs2.pdf), (weight, weight2)):
+        assert np.array_equal(np.asarray(a), np.asarray(b))
+    assert np.array_equal(np.asarray(bs.sampled_component), np.asarray(bs2.sampled_component))
+    assert np.count_nonzero(np.asarray(weight)[0]) > 2000  # lanes that sampled something
+
+
 @pytest.mark.parametrize("theta", [20.0, 60.0])
 def test_share_factors_cut_the_variance_of_footprint_samples(theta):
     """The footprint mixture's second calibration stage against the albedo ratios alone, on

@@ -5,7 +5,7 @@ import drjit as dr
 import mitsuba as mi
 import pytest
 
-from mscloth.render import KernelCompilation, throughput_text
+from mscloth.render import MAX_PASSES, SAMPLES_PER_PASS, KernelCompilation, pass_count, render_progressive, throughput_text
 
 
 def _numbers(text):
@@ -33,3 +33,30 @@ def test_kernel_compilation_sees_a_new_kernel_and_restores_the_history_flag():
         dr.eval(x)
     assert compiling.seconds > 0.0
     assert dr.flag(dr.JitFlag.KernelHistory) == had
+
+
+def test_a_small_render_is_one_pass_and_a_large_one_several():
+    # the first picture (320x180, 16 spp: 0.9 M samples) is one pass: each pass traces the
+    # kernel again (~0.1 s), eight of them cost as much as the render
+    assert pass_count(320 * 180, 16) == 1
+    assert pass_count(512 * 512, 64) == round(512 * 512 * 64 / SAMPLES_PER_PASS) == 4
+    assert pass_count(2048 * 2048, 256) == MAX_PASSES
+    assert pass_count(4096 * 4096, 3) == 3          # never more passes than samples
+    assert pass_count(1000 * 1000, 9) == 1          # 2 does not divide 9
+    assert pass_count(10, 12, passes=5) == 4        # asked for: lowered to a divisor
+    assert pass_count(10, 1, passes=0) == 1
+
+
+def test_render_progressive_averages_its_passes(monkeypatch):
+    scene = mi.load_dict({"type": "scene", "integrator": {"type": "path"},
+                          "sensor": {"type": "perspective",
+                                     "film": {"type": "hdrfilm", "width": 4, "height": 3}},
+                          "sky": {"type": "constant"}})
+    calls = []
+    monkeypatch.setattr(mi, "render", lambda scene, spp, seed: calls.append((spp, seed)) or dr.full(mi.TensorXf, float(seed), (3, 4, 3)))
+    image = render_progressive(scene, 12, passes=4, seed=10, quiet=True)
+    assert calls == [(3, 10), (3, 11), (3, 12), (3, 13)]
+    assert dr.allclose(image, 11.5)
+    calls.clear()
+    render_progressive(scene, 16, seed=0, quiet=True)
+    assert calls == [(16, 0)]

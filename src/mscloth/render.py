@@ -61,18 +61,36 @@ def throughput_text(samples: int, seconds: float, compile_seconds: float) -> str
     return f"{rate} (render {render:.2f} s, plus {compile_seconds:.1f} s kernel compilation)"
 
 
+#: Camera samples per progressive pass, about: each pass traces the render kernel again in
+#: Python (~0.1 s with cloth on 2 cores), so a small render is one pass, not eight.
+SAMPLES_PER_PASS = 4_000_000
+MAX_PASSES = 8
+
+
+def pass_count(pixels: int, spp: int, passes: int | None = None) -> int:
+    """Passes for ``spp`` samples per pixel over ``pixels`` pixels: ``passes`` if given,
+    else one per ~SAMPLES_PER_PASS samples, at most MAX_PASSES; lowered until it divides
+    ``spp``."""
+    if passes is None:
+        passes = round(pixels * spp / SAMPLES_PER_PASS)
+    passes = max(1, min(passes, spp, MAX_PASSES))
+    while spp % passes:
+        passes -= 1
+    return passes
+
+
 def render_progressive(scene, spp: int, passes: int | None = None, seed: int = 0,
                        label: str = "render", quiet: bool = False):
-    """Render ``spp`` samples per pixel in passes (showing progress); return the mean image.
+    """Render ``spp`` samples per pixel in passes (showing progress; :func:`pass_count`);
+    return the mean image.
 
     Each pass is an independent render with its own seed, so the average equals
     one render at the full sample count in expectation.
     """
     if spp < 1:
         raise ValueError(f"spp must be >= 1, got {spp}")
-    passes = passes or min(spp, 8)
-    while spp % passes:
-        passes -= 1
+    size = scene.sensors()[0].film().crop_size()
+    passes = pass_count(int(size[0]) * int(size[1]), spp, passes)
     per_pass = spp // passes
     # Free unreachable plugin instances first: Dr.Jit traces a virtual call through every
     # registered BSDF, and one freed by the garbage collector mid-trace crashes it.

@@ -84,6 +84,16 @@ class ClothShading:
         pdfs = [dr.select(active, p, 0.0) for p in pdfs]
         return values, pdfs, (self._bsdf_sample(SampleRecord(*record)) if record else ())
 
+    def sample_footprint(self, enabled, si, sample1, sample2, active=True):
+        """(BSDFSample3f, weight) of the footprint branch alone, for footprints known to be
+        over ``FOOTPRINT_TEXELS`` (the share calibration's): the kernel then holds no
+        fibre-level branch, and compiles in about half the time of :meth:`shade`'s."""
+        fr = self.fibre.frame(si, active)
+        hashed = self.estimator.shading_hash(si)
+        fp = self.estimator.footprint(si, fr, hashed[2])
+        record = self._footprint_branch(si, fr, enabled, [], (sample1, sample2), active, fp, hashed)[2]
+        return self._bsdf_sample(SampleRecord(*record))
+
     def _point_branch(self, si, fr: ViewFrame, enabled, wos, samples, active, fp=None, xi=None):
         """(values, pdfs, sample record) of the fibre-level BSDF at the texel under
         si.uv (or, for a small footprint ``fp``, under the point ``xi`` of it, uniform in

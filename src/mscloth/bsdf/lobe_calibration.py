@@ -35,7 +35,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..jit_arrays import flat_array, gather_block, lane_values, opaque
-from .lobes import (DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN, SPECULAR_REFLECTION,
+from .lobes import (DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN, SPECULAR_REFLECTION, enabled_lobes,
                     SPECULAR_TRANSMISSION)
 
 #: Lobes with a measured ratio: (proxy slot, components whose albedos it covers). The
@@ -166,7 +166,7 @@ def measure_share_factors(bsdf, footprint_uv, nodes: int = 16, lanes: int = 4096
     si.duv_dy = mi.Vector2f(0.0, opaque(mi.Float, footprint_uv[1]))
     # Inputs evaluated first, so the pass's kernel holds the sampling alone.
     dr.eval(si, s1, s2)
-    bs, weight = bsdf.sample(mi.BSDFContext(), si, s1, s2)
+    bs, weight = bsdf.shading.sample_footprint(enabled_lobes(mi.BSDFContext()), si, s1, s2)
     dr.eval(bs.sampled_component, bs.pdf, weight)  # one kernel: the pdf read below too
     w = np.asarray(weight, dtype=np.float64).mean(axis=0)
     comp = np.asarray(bs.sampled_component)
