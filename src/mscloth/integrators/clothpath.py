@@ -360,6 +360,10 @@ def make_clothpath_class():
                     ray_skip = si_skip.spawn_ray(ray.d)
                     pi = dr.select(skip, self.skip_area_emitters(scene, ray_skip, True, skip), pi)
 
+            # Where the sample's place in its pixel is not known, the tent filter's offset
+            # of up to a pixel: two sampler dimensions, drawn once (used at the first hit).
+            tent_jitter = mi.warp.square_to_tent(sampler.next_2d()) if tent_filter else None
+
             def body(sampler, s: PathState):
                 si = s.pi.compute_surface_interaction(s.ray, mi.RayFlags.All)
                 # (scalar: a miss has no shape, and si.bsdf() would dereference it)
@@ -465,9 +469,7 @@ def make_clothpath_class():
                     centre = fp.centred_uv(si.uv, si.duv_dx, si.duv_dy, ox, oy)
                 if tent_filter:
                     shift_ok = first & si.is_valid()
-                    # Where the sample's place in its pixel is not known: a tent offset of
-                    # up to a pixel from two more sampler dimensions.
-                    jitter = mi.warp.square_to_tent(sampler.next_2d())
+                    jitter = tent_jitter
                     si_shade = mi.SurfaceInteraction3f(si)
                     si_shade.uv = dr.select(shift_ok, fp.centred_uv(si.uv, si.duv_dx, si.duv_dy, -jitter.x, -jitter.y),
                                             si.uv)
