@@ -40,9 +40,13 @@ def _timed(owner, name: str, label: str):
 
 
 def _instrument():
-    from mscloth.bsdf import cloth, footprint_data, lobe_calibration, lobe_mixture
+    from mscloth import loading
+    from mscloth.bsdf import cloth, footprint_data, lobe_calibration, lobe_mixture, parameters
     from mscloth.precompute import tables
 
+    _timed(loading, "load_dict", "load_dict (all)")
+    _timed(loading, "load_file", "load_file (all)")
+    _timed(cloth, "cloth_maps", "maps (generate or load)")
     _timed(tables, "load_or_build", "tables (build or load)")
     _timed(footprint_data.FootprintData, "__init__", "FootprintData (upload)")
     _timed(lobe_mixture.LobeSamplers, "for_fuzz", "LobeSamplers.for_fuzz")

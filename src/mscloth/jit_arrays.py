@@ -16,11 +16,14 @@ def _aligned(values, dtype) -> np.ndarray:
     :func:`gather_block` packet silently becomes four scalar gathers, 1.5-2x the render
     time of a footprint shading, measured), and per-lane inputs aligned differently
     trace a different kernel (a fresh compilation and a kernel-cache miss)."""
-    values = np.asarray(values, dtype=dtype).ravel()
-    buffer = np.empty(values.nbytes + 64, dtype=np.uint8)
+    values = np.asarray(values)
+    nbytes = values.size * np.dtype(dtype).itemsize
+    buffer = np.empty(nbytes + 64, dtype=np.uint8)
     start = -buffer.ctypes.data % 64
-    aligned = buffer[start:start + values.nbytes].view(dtype)
-    aligned[:] = values
+    aligned = buffer[start:start + nbytes].view(dtype)
+    # One pass from a strided or wider view (a table moved to channel-minor order):
+    # ravel-then-copy read 100 MiB tables twice.
+    np.copyto(aligned.reshape(values.shape), values, casting="unsafe")
     return aligned
 
 
