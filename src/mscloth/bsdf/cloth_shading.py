@@ -46,9 +46,44 @@ def _unzip(pairs):
     return [p[0] for p in pairs], [p[1] for p in pairs]
 
 
+def eval_pdf_each(eval_pdf, directions, differentiable):
+    """([values], [pdfs]) of ``eval_pdf`` at each of ``directions``. In JIT variants two
+    or more directions go through one symbolic loop, so the traced code holds one copy of
+    the evaluation instead of one per direction: the footprint BSDF's is most of a render
+    kernel, and its compilation most of a first picture's wait. Unrolled where gradients
+    flow (``differentiable``): reverse-mode AD does not cross symbolic loops."""
+    n = len(directions)
+    if n < 2 or not dr.is_jit_v(mi.Float) or differentiable:
+        return _unzip([eval_pdf(wo) for wo in directions])
+    lanes = dr.width(directions)
+
+    def pick(i):
+        wo = directions[0]
+        for k in range(1, n):
+            wo = dr.select(i == k, directions[k], wo)
+        return wo
+
+    def body(i, values, pdfs):
+        value, pdf = eval_pdf(pick(i))
+        values = tuple(dr.select(i == k, value, old) for k, old in enumerate(values))
+        pdfs = tuple(dr.select(i == k, pdf, old) for k, old in enumerate(pdfs))
+        return i + 1, values, pdfs
+
+    state = (dr.zeros(mi.UInt32, lanes), tuple(dr.zeros(mi.Color3f, lanes) for _ in range(n)),
+             tuple(dr.zeros(mi.Float, lanes) for _ in range(n)))
+    _, values, pdfs = dr.while_loop(state=state, cond=lambda i, values, pdfs: i < n, body=body,
+                                    labels=("i", "values", "pdfs"), label="cloth_directions")
+    return list(values), list(pdfs)
+
+
 class ClothShading:
     """The shading of a ``cloth`` BSDF: its fibre-level BSDF and, when multi-scale, the
     footprint estimator over it."""
+
+    #: Evaluate a shading point's directions (the emitter samples', the sampled one) in one
+    #: symbolic loop rather than one traced copy each (:func:`eval_pdf_each`). False:
+    #: unrolled (experiments).
+    LOOP_DIRECTIONS = True
 
     def __init__(self, fibre: FibreBSDF, estimator: FootprintEstimator | None):
         self.fibre = fibre
@@ -112,13 +147,11 @@ class ClothShading:
         def eval_pdf(wo):
             return fibre.eval_pdf(pt, wo, enabled, probs)
 
-        record = ()
+        sampled = None
         if samples is not None:
             wo, ok, component, gap_ok = fibre.sample(pt, probs, enabled, *samples, active)
-            record = self._sample_record(si, fr, eval_pdf, wo, ok, component, gap_ok, probs[GAP],
-                                         fibre.gap_value(fr, pt.yarn))
-        values, pdfs = _unzip([eval_pdf(wo) for wo in wos])
-        return values, pdfs, record
+            sampled = (wo, ok, component, gap_ok, probs[GAP], fibre.gap_value(fr, pt.yarn))
+        return self._evaluate(si, fr, eval_pdf, wos, sampled)
 
     def _footprint_branch(self, si, fr: ViewFrame, enabled, wos, samples, active, fp, hashed):
         """The same for the footprint BSDF (multi-scale shading) of footprint ``fp``,
@@ -130,17 +163,29 @@ class ClothShading:
         def eval_pdf(wo):
             return estimator.eval(fr, st, wo, enabled), estimator.pdf(fr, st, wo, enabled)
 
-        record = ()
-        if samples is not None:
-            record = self._sample_record(si, fr, eval_pdf, *estimator.sample(fr, st, enabled, *samples, active))
-        values, pdfs = _unzip([eval_pdf(wo) for wo in wos])
+        sampled = estimator.sample(fr, st, enabled, *samples, active) if samples is not None else None
+        return self._evaluate(si, fr, eval_pdf, wos, sampled)
+
+    def _evaluate(self, si, fr: ViewFrame, eval_pdf, wos, sampled):
+        """(values, pdfs, sample record or ()) of a branch: ``eval_pdf`` at the directions
+        ``wos`` and at the sampled one (``sampled``: what the branch's sample returned, with
+        its gap's pdf and value; None without a sample), all in one loop
+        (:func:`eval_pdf_each`)."""
+        directions = list(wos) + ([sampled[0]] if sampled is not None else [])
+        p = self.fibre.params
+        differentiable = not self.LOOP_DIRECTIONS or dr.grad_enabled(directions, si, fr.k, p.roughness, p.thickness, p.sheen_roughness,
+                                         p.sheen_thickness)
+        values, pdfs = eval_pdf_each(eval_pdf, directions, differentiable)
+        if sampled is None:
+            return values, pdfs, ()
+        record = self._sample_record(si, fr, values.pop(), pdfs.pop(), *sampled)
         return values, pdfs, record
 
     @staticmethod
-    def _sample_record(si, fr: ViewFrame, eval_pdf, wo, ok, component, gap_ok, gap_pdf, gap_value):
+    def _sample_record(si, fr: ViewFrame, value, pdf, wo, ok, component, gap_ok, gap_pdf, gap_value):
         """(wo in the world's local frame, pdf, component, weight) of a sampled mirrored
-        direction, or of the gap: a tuple, the output of a symbolic if."""
-        value, pdf = eval_pdf(wo)
+        direction with its ``value`` and ``pdf``, or of the gap: a tuple, the output of a
+        symbolic if."""
         ok &= pdf > 0.0
         weight = dr.select(ok, value / dr.select(ok, pdf, 1.0), 0.0)
         gap_ok &= gap_pdf > 0.0
