@@ -259,3 +259,38 @@ def test_changed_shading_parameters_are_checked_and_rebuild_the_samplers():
     params["thickness"] = -1.0
     with pytest.raises(ParameterError, match=r"cloth \[.*\]: parameter 'thickness' .* got -1"):
         params.update()
+
+
+def test_gradients_flow_through_several_directions_at_once():
+    """eval_pdf_sample_n evaluates its directions in one symbolic loop, which reverse-mode
+    AD cannot cross: where a parameter carries a gradient the directions are unrolled, and
+    the gradient of two directions' values at once is the sum of each one's alone."""
+    bsdf = mi.load_dict(dict(CLOTH, multiscale=False))
+    params = mi.traverse(bsdf)
+    key = next(k for k in params.keys() if k.endswith("thickness") and "sheen" not in k)
+    rng = np.random.default_rng(3)
+    n = 2000
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.wi = dr.normalize(mi.Vector3f(rng.random(n) - 0.5, rng.random(n) - 0.5, rng.random(n) + 0.2))
+    si.uv = mi.Point2f(rng.random(n), rng.random(n))
+    wos = [dr.normalize(mi.Vector3f(rng.random(n) - 0.5, rng.random(n) - 0.5, rng.random(n) + 0.1)) for _ in range(2)]
+    ctx = mi.BSDFContext()
+
+    def gradient(loss_of):
+        dr.enable_grad(params[key])
+        params.update()
+        try:
+            dr.backward(loss_of())
+            return float(dr.grad(params[key])[0])
+        finally:
+            dr.disable_grad(params[key])
+            params.update()
+
+    def both():
+        values = bsdf.eval_pdf_sample_n(ctx, si, wos, mi.Float(0.5), mi.Point2f(0.5, 0.5))[0]
+        return dr.sum(values[0] + values[1], axis=None)
+
+    together = gradient(both)
+    alone = sum(gradient(lambda wo=wo: dr.sum(bsdf.eval(ctx, si, wo), axis=None)) for wo in wos)
+    assert together != 0.0
+    assert together == pytest.approx(alone, rel=1e-4)

@@ -46,14 +46,15 @@ def _unzip(pairs):
     return [p[0] for p in pairs], [p[1] for p in pairs]
 
 
-def eval_pdf_each(eval_pdf, directions, differentiable):
+def eval_pdf_each(eval_pdf, directions, unrolled=False):
     """([values], [pdfs]) of ``eval_pdf`` at each of ``directions``. In JIT variants two
     or more directions go through one symbolic loop, so the traced code holds one copy of
     the evaluation instead of one per direction: the footprint BSDF's is most of a render
-    kernel, and its compilation most of a first picture's wait. Unrolled where gradients
-    flow (``differentiable``): reverse-mode AD does not cross symbolic loops."""
+    kernel, and its compilation most of a first picture's wait (it also runs faster:
+    docs/performance-log.md L38). ``unrolled``: one traced copy per direction instead
+    (where gradients flow: reverse-mode AD does not cross symbolic loops)."""
     n = len(directions)
-    if n < 2 or not dr.is_jit_v(mi.Float) or differentiable:
+    if n < 2 or not dr.is_jit_v(mi.Float) or unrolled:
         return _unzip([eval_pdf(wo) for wo in directions])
     lanes = dr.width(directions)
 
@@ -122,7 +123,7 @@ class ClothShading:
     def sample_footprint(self, enabled, si, sample1, sample2, active=True):
         """(BSDFSample3f, weight) of the footprint branch alone, for footprints known to be
         over ``FOOTPRINT_TEXELS`` (the share calibration's): the kernel then holds no
-        fibre-level branch, and compiles in about half the time of :meth:`shade`'s."""
+        fibre-level branch (a fifth fewer operations than :meth:`shade`'s)."""
         fr = self.fibre.frame(si, active)
         hashed = self.estimator.shading_hash(si)
         fp = self.estimator.footprint(si, fr, hashed[2])
@@ -173,9 +174,9 @@ class ClothShading:
         (:func:`eval_pdf_each`)."""
         directions = list(wos) + ([sampled[0]] if sampled is not None else [])
         p = self.fibre.params
-        differentiable = not self.LOOP_DIRECTIONS or dr.grad_enabled(directions, si, fr.k, p.roughness, p.thickness, p.sheen_roughness,
-                                         p.sheen_thickness)
-        values, pdfs = eval_pdf_each(eval_pdf, directions, differentiable)
+        gradients = dr.grad_enabled(directions, si, fr.k, p.roughness, p.thickness, p.sheen_roughness,
+                                    p.sheen_thickness)
+        values, pdfs = eval_pdf_each(eval_pdf, directions, unrolled=gradients or not self.LOOP_DIRECTIONS)
         if sampled is None:
             return values, pdfs, ()
         record = self._sample_record(si, fr, values.pop(), pdfs.pop(), *sampled)
