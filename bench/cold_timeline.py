@@ -41,7 +41,7 @@ def _timed(owner, name: str, label: str):
 
 def _instrument():
     from mscloth import loading
-    from mscloth.bsdf import cloth, footprint_data, lobe_calibration, lobe_mixture, parameters
+    from mscloth.bsdf import cloth, footprint_data, lobe_calibration, lobe_mixture
     from mscloth.precompute import tables
 
     _timed(loading, "load_dict", "load_dict (all)")
@@ -52,10 +52,9 @@ def _instrument():
     _timed(lobe_mixture.LobeSamplers, "for_fuzz", "LobeSamplers.for_fuzz")
     _timed(lobe_calibration, "measure_ratios", "calibration: albedo ratios")
     _timed(lobe_calibration, "measure_share_factors", "calibration: share passes")
-    # cloth.py imported load_or_build inside a method, so the module attribute is enough;
-    # it binds calibrate at import time, so wrap the name it reads.
-    if hasattr(cloth, "calibrate"):
-        _timed(cloth, "calibrate", "calibration (all)")
+    # cloth.py imports load_or_build inside a method (the module attribute is read at call
+    # time), but binds cloth_maps and calibrate at import: wrap the names it reads.
+    _timed(cloth, "calibrate", "calibration (all)")
 
 
 def child(argv: list[str]) -> int:

@@ -133,14 +133,14 @@ def test_directions_evaluated_in_one_loop_equal_each_evaluated_alone(bsdf):
     """eval_pdf_sample_n evaluates its directions and the sampled one in one symbolic loop
     (a kernel half the size, compiled 4x faster): the same values, densities and sample,
     to the bit, as eval_pdf and sample of one direction each (traced without the loop),
-    over lanes at fibre level (no footprint), in the blend (6 texels across) and over
-    footprints (80 texels)."""
+    over lanes at fibre level (no footprint), in the blend (5 texels across: 25 texels,
+    between POINT_TEXELS and FOOTPRINT_TEXELS) and over footprints (80 texels across)."""
     rng = np.random.default_rng(8)
     n = 24_000
     wi = random_directions(rng, n)
     wos = [vec(random_directions(rng, n)) for _ in range(2)]
     si = make_si(vec(wi), pt2(random_uv(rng, n)), n)
-    d = np.repeat([0.0, 6.0, 80.0], n // 3) / bsdf.fibre.tile.tile_w
+    d = np.repeat([0.0, 5.0, 80.0], n // 3) / bsdf.fibre.tile.tile_w
     si.duv_dx = mi.Vector2f(mi.Float(d), 0.0)
     si.duv_dy = mi.Vector2f(0.0, mi.Float(d))
     s1, s2 = mi.Float(rng.random(n)), mi.Point2f(rng.random(n), rng.random(n))

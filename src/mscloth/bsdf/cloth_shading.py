@@ -109,8 +109,7 @@ class ClothShading:
         else:
             # One hash and one footprint per shading point, for the branch choice and
             # for the branch taken.
-            hashed = self.estimator.shading_hash(si)
-            fp = self.estimator.footprint(si, fr, hashed[2])
+            hashed, fp = self._hashed_footprint(si, fr)
             values, pdfs, record = branch(
                 fp.use, (si, wos, samples),
                 true_fn=lambda: self._footprint_branch(si, fr, enabled, wos, samples, active, fp, hashed),
@@ -120,13 +119,18 @@ class ClothShading:
         pdfs = [dr.select(active, p, 0.0) for p in pdfs]
         return values, pdfs, (self._bsdf_sample(SampleRecord(*record)) if record else ())
 
+    def _hashed_footprint(self, si, fr: ViewFrame):
+        """(the shading hash (xi, xi_round, u), the footprint it picks): one of each per
+        shading point, for the branch choice and for the branch taken."""
+        hashed = self.estimator.shading_hash(si)
+        return hashed, self.estimator.footprint(si, fr, hashed[2])
+
     def sample_footprint(self, enabled, si, sample1, sample2, active=True):
         """(BSDFSample3f, weight) of the footprint branch alone, for footprints known to be
         over ``FOOTPRINT_TEXELS`` (the share calibration's): the kernel then holds no
         fibre-level branch (a fifth fewer operations than :meth:`shade`'s)."""
         fr = self.fibre.frame(si, active)
-        hashed = self.estimator.shading_hash(si)
-        fp = self.estimator.footprint(si, fr, hashed[2])
+        hashed, fp = self._hashed_footprint(si, fr)
         record = self._footprint_branch(si, fr, enabled, [], (sample1, sample2), active, fp, hashed)[2]
         return self._bsdf_sample(SampleRecord(*record))
 
@@ -238,8 +242,7 @@ class ClothShading:
         if estimator is None:
             yarn = fibre.texel(fr, fr.x, fr.y).yarn
         else:
-            xi, xi_round, u = estimator.shading_hash(si)
-            fp = estimator.footprint(si, fr, u)
+            (xi, xi_round, _), fp = self._hashed_footprint(si, fr)
             data = fibre.footprint_data
 
             def texel_yarn():  # at the point the fibre-level branch shades

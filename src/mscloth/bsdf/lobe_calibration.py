@@ -35,8 +35,8 @@ import mitsuba as mi
 import numpy as np
 
 from ..jit_arrays import flat_array, gather_block, lane_values, opaque
-from .lobes import (DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN, SPECULAR_REFLECTION, enabled_lobes,
-                    SPECULAR_TRANSMISSION)
+from .lobes import (DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN, SPECULAR_REFLECTION,
+                    SPECULAR_TRANSMISSION, enabled_lobes)
 
 #: Lobes with a measured ratio: (proxy slot, components whose albedos it covers). The
 #: specular proxy stands for the flake lobe, which reflects and transmits. The gap's proxy
