@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import mscloth
+from mscloth.bsdf.footprint_estimator import FootprintEstimator
 from mscloth.bsdf.lobes import GAP, SHEEN
 
 from cloth_fixtures import gap_texel, make_si, non_delta_context, uv_of, yarn_texels
@@ -156,6 +157,38 @@ def test_directions_evaluated_in_one_loop_equal_each_evaluated_alone(bsdf):
     for a, b in ((bs.wo, bs_alone.wo), (bs.pdf, bs_alone.pdf), (weight, weight_alone)):
         np.testing.assert_array_equal(np.array(a), np.array(b))
     np.testing.assert_array_equal(np.array(bs.sampled_component), np.array(bs_alone.sampled_component))
+
+
+SHINY_SATIN = {"type": "cloth", "pattern": "satin-5-2", "roughness": 0.12, "specular_albedo": 0.8,
+               "specular_transmittance": 0.05, "diffuse_albedo": 0.1, "sheen_color": 0.2}
+
+
+@pytest.mark.parametrize("params", [CLOTH, SHINY_SATIN], ids=["rough plain", "shiny satin"])
+def test_residual_texels_summed_in_one_loop_equal_their_unrolled_sum(params, monkeypatch):
+    """The footprint BSDF sums its residual texels' terms (2x2 on rough cloth, 3x3 on
+    shiny) in one symbolic loop, each texel's fields picked by its index: the same values
+    and densities, to the bit, as one traced copy per texel, for viewers above and below,
+    over footprints inside a tile and over whole tiles (where the control variate's
+    visibility switches), and where the footprint blends into fibre level."""
+    bsdf = mi.load_dict(params)
+    tile_w = bsdf.fibre.tile.tile_w
+    rng = np.random.default_rng(9)
+    n = 20_000
+    wi, wo = random_directions(rng, n), vec(random_directions(rng, n))
+    si = make_si(vec(wi), pt2(random_uv(rng, n)), n)
+    d = np.repeat([5.0, 80.0, 2.5 * tile_w, 5.0 * tile_w], n // 4) / tile_w
+    si.duv_dx = mi.Vector2f(mi.Float(d), 0.0)
+    si.duv_dy = mi.Vector2f(mi.Float(0.3 * d), mi.Float(0.8 * d))
+    ctx = mi.BSDFContext()
+    looped = bsdf.eval_pdf(ctx, si, wo)
+    monkeypatch.setattr(FootprintEstimator, "LOOP_TEXELS", False)
+    unrolled = bsdf.eval_pdf(ctx, si, wo)
+    np.testing.assert_array_equal(np3(looped[0]), np3(unrolled[0]))
+    np.testing.assert_array_equal(np.array(looped[1]), np.array(unrolled[1]))
+    for quarter in range(4):
+        lanes = slice(quarter * (n // 4), (quarter + 1) * (n // 4))
+        assert np.count_nonzero(np3(looped[0])[lanes].sum(axis=1) > 0.0) > n // 16
+        assert np.isfinite(np3(looped[0])[lanes]).all() and np.isfinite(np.array(looped[1])[lanes]).all()
 
 
 def hemispherical_albedo(bsdf, wi, uv, n, seed):

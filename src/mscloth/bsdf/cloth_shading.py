@@ -46,16 +46,17 @@ def _unzip(pairs):
     return [p[0] for p in pairs], [p[1] for p in pairs]
 
 
-def eval_pdf_each(eval_pdf, directions, unrolled=False):
-    """([values], [pdfs]) of ``eval_pdf`` at each of ``directions``. In JIT variants two
-    or more directions go through one symbolic loop, so the traced code holds one copy of
-    the evaluation instead of one per direction: the footprint BSDF's is most of a render
-    kernel, and its compilation most of a first picture's wait (it also runs faster:
-    docs/performance-log.md L38). ``unrolled``: one traced copy per direction instead
-    (where gradients flow: reverse-mode AD does not cross symbolic loops)."""
+def eval_pdf_each(eval_pdf, directions, gradients=False, loop=True):
+    """([values], [pdfs]) of ``eval_pdf(wo, unrolled)`` at each of ``directions``. In JIT
+    variants two or more directions go through one symbolic loop, so the traced code holds
+    one copy of the evaluation instead of one per direction: the footprint BSDF's is most
+    of a render kernel, and its compilation most of a first picture's wait (it also runs
+    faster: docs/performance-log.md L38). Where ``gradients`` flow (reverse-mode AD does not
+    cross symbolic loops), or without ``loop``, one traced copy per direction instead;
+    ``eval_pdf``'s ``unrolled`` is ``gradients``: its own loops must unroll too."""
     n = len(directions)
-    if n < 2 or not dr.is_jit_v(mi.Float) or unrolled:
-        return _unzip([eval_pdf(wo) for wo in directions])
+    if n < 2 or not dr.is_jit_v(mi.Float) or gradients or not loop:
+        return _unzip([eval_pdf(wo, gradients) for wo in directions])
     lanes = dr.width(directions)
 
     def pick(i):
@@ -65,7 +66,7 @@ def eval_pdf_each(eval_pdf, directions, unrolled=False):
         return wo
 
     def body(i, values, pdfs):
-        value, pdf = eval_pdf(pick(i))
+        value, pdf = eval_pdf(pick(i), False)
         values = tuple(dr.select(i == k, value, old) for k, old in enumerate(values))
         pdfs = tuple(dr.select(i == k, pdf, old) for k, old in enumerate(pdfs))
         return i + 1, values, pdfs
@@ -149,7 +150,7 @@ class ClothShading:
         pt = fibre.read_visibility(fibre.texel(fr, x, y))
         probs = fibre.lobe_probabilities(pt, enabled)
 
-        def eval_pdf(wo):
+        def eval_pdf(wo, unrolled):
             return fibre.eval_pdf(pt, wo, enabled, probs)
 
         sampled = None
@@ -165,8 +166,8 @@ class ClothShading:
         xi, xi_round, _ = hashed
         st = estimator.state(si, fr, enabled, xi, xi_round, fp=fp)
 
-        def eval_pdf(wo):
-            return estimator.eval(fr, st, wo, enabled), estimator.pdf(fr, st, wo, enabled)
+        def eval_pdf(wo, unrolled):
+            return estimator.eval_pdf(fr, st, wo, enabled, unrolled)
 
         sampled = estimator.sample(fr, st, enabled, *samples, active) if samples is not None else None
         return self._evaluate(si, fr, eval_pdf, wos, sampled)
@@ -180,7 +181,7 @@ class ClothShading:
         p = self.fibre.params
         gradients = dr.grad_enabled(directions, si, fr.k, p.roughness, p.thickness, p.sheen_roughness,
                                     p.sheen_thickness)
-        values, pdfs = eval_pdf_each(eval_pdf, directions, unrolled=gradients or not self.LOOP_DIRECTIONS)
+        values, pdfs = eval_pdf_each(eval_pdf, directions, gradients, self.LOOP_DIRECTIONS)
         if sampled is None:
             return values, pdfs, ()
         record = self._sample_record(si, fr, values.pop(), pdfs.pop(), *sampled)

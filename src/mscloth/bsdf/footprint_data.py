@@ -110,17 +110,26 @@ class FootprintData:
                 row[k] += w * c
         return row
 
-    def binned_ndf(self, bins, weights, tangent, alpha):
-        """D(h, t) I of one texel as the tables hold it: the fibre NDF of ``tangent`` at the
-        centres of the direction ``bins`` around h, mixed with their bilinear ``weights``.
-        Its footprint mean is what :meth:`d_integral` reads (up to rank compression), so the
-        residual texels take it as their control variate: the footprint estimate is then
-        free of the bins' bias whatever their size, at the price of more variance where
-        the bins are coarse for the lobe."""
-        total = mi.Float(0.0)
-        for b, w in zip(bins, weights):
+    def bin_centres_of(self, bins):
+        """The centre directions of the direction ``bins`` (for :meth:`binned_ndf`)."""
+        centres = []
+        for b in bins:
             c = gather_block(self.bin_centres, b * 4, 4)
-            total += w * sggx.ndf(mi.Vector3f(c[0], c[1], c[2]), tangent, alpha)
+            centres.append(mi.Vector3f(c[0], c[1], c[2]))
+        return centres
+
+    @staticmethod
+    def binned_ndf(centres, weights, tangent, alpha):
+        """D(h, t) I of one texel as the tables hold it: the fibre NDF of ``tangent`` at the
+        ``centres`` of the direction bins around h (:meth:`bin_centres_of`, read once for
+        every texel), mixed with their bilinear ``weights``. Its footprint mean is what
+        :meth:`d_integral` reads (up to rank compression), so the residual texels take it
+        as their control variate: the footprint estimate is then free of the bins' bias
+        whatever their size, at the price of more variance where the bins are coarse for
+        the lobe."""
+        total = mi.Float(0.0)
+        for c, w in zip(centres, weights):
+            total += w * sggx.ndf(c, tangent, alpha)
         return total
 
     def cluster_d_means(self, bins, weights):

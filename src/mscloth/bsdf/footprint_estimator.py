@@ -173,6 +173,10 @@ class FootprintEstimator:
     #: texels' positions depend on the rounded box, a bias (performance log L24).
     STRATIFY = True
 
+    #: Sum the residual texels' terms in a symbolic loop (:meth:`eval_pdf`); False: one
+    #: traced copy per texel (experiments; where gradients flow, always).
+    LOOP_TEXELS = True
+
     #: The tuning constants above (a cached calibration, measured with them, keys on them).
     TUNING = ("POINT_TEXELS", "FOOTPRINT_TEXELS", "MAX_PROBES", "CELLS", "CELLS_BELOW", "CELLS_BELOW_BY_ROUGHNESS",
               "DEFENSIVE_COSINE", "DEFENSIVE_MIN_SIDE",
@@ -502,27 +506,37 @@ class FootprintEstimator:
     # ------------------------------------------------------------------
     def eval(self, fr: ViewFrame, st: FootprintState, wo, enabled):
         """Footprint-averaged non-delta f*|cos o| (Eq. 9-14 with CCV), mirrored frame."""
+        return self.eval_pdf(fr, st, wo, enabled, unrolled=True)[0]
+
+    def pdf(self, fr: ViewFrame, st: FootprintState, wo, enabled):
+        """Density of the footprint mixture's non-delta directions (mirrored frame)."""
+        return self.eval_pdf(fr, st, wo, enabled, unrolled=True)[1]
+
+    def eval_pdf(self, fr: ViewFrame, st: FootprintState, wo, enabled, unrolled=False):
+        """(:meth:`eval`, :meth:`pdf`) at ``wo`` (mirrored frame), their residual texels'
+        terms in one pass (:meth:`_texel_sums`: a symbolic loop unless ``unrolled``)."""
         fibre = self.fibre
         fd = fibre.footprint_data
         roughness, thickness = fibre.params.roughness, fibre.params.thickness
         wi = fr.wi
         k = fr.k
         texels = st.texels
+        n = len(texels)
         cos_o = wo.z
         up = cos_o > 0.0
         valid = (wi.z > spongecake.COS_EPSILON) & (dr.abs(cos_o) > spongecake.COS_EPSILON)
         yarn_albedo = st.yarn_albedo
+        specular = enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]
+        diffuse = enabled[DIFFUSE_REFLECTION] or enabled[DIFFUSE_TRANSMISSION]
+        samplers = fibre.samplers
+        fold = samplers.fold_share(k, enabled)
 
+        vbar_p = None
         if fibre.use_visibility:
-            # Per residual texel: V(p, i, o) and its cluster's mean v_c(i) v_c(o).
+            # Each residual texel's cluster's mean v_c(i) v_c(o).
             cvis_o = fibre.cluster_visibilities_o(fr, wo)
-            v_p = [t_.v_i * fibre.visibility_o(t_, wo) for t_ in texels]
             vbar_p = [t_.cvis_i * pick(cvis_o, t_.cluster) for t_ in texels]
-
-        value, under_fuzz = fibre.sheen_and_fuzz(fr, wo, enabled)
-        reflection = mi.Color3f(0.0)
-        transmission = mi.Color3f(0.0)
-        if enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]:
+        if specular:
             h = dr.normalize(wi + wo)
             h = dr.select(h.z < 0.0, -h, h)  # D is even
             # The tables hold D of the maps' own tangents; the mirrored frame flips their
@@ -532,8 +546,10 @@ class FootprintEstimator:
             # The four bins around h with their bilinear weights, deterministically: a
             # random pick of one (a quarter of the reads) was most of the estimator's own
             # noise on shiny cloth near and in the middle distance (docs/performance-log.md L15).
-            bins_h = hemisphere_bins(h_table, fd.dr)
-            d_yarn = fd.d_integral(st.q, *bins_h) * st.inv_area  # mean over P of D I
+            bins, weights = hemisphere_bins(h_table, fd.dr)
+            centres = fd.bin_centres_of(bins)
+            d_yarn = fd.d_integral(st.q, bins, weights) * st.inv_area  # mean over P of D I
+
             # f_rs per unit D: G of the footprint's mean SGGX matrix (g_bar), and of each
             # residual texel's own tangent (g_k). The residual corrects mean(D) g_bar
             # towards mean(D g), which differ where D and the tangent correlate (grazing
@@ -542,36 +558,31 @@ class FootprintEstimator:
                 return spongecake.eval_specular_from(1.0, sigma_i, sigma_o, wi, wo, thickness)[0]
 
             g_bar = g_of(sggx.mean_sigma(st.moments, wi, roughness), sggx.mean_sigma(st.moments, wo, roughness))
-            d_k = [sggx.ndf(h, t_.tangent, roughness) * t_.yarn for t_ in texels]
-            # The same texels' D as the tables bin it (tangents in the tables' frame): the
-            # control variate that removes the bins' bias from the base.
-            dbin_k = [fd.binned_ndf(*bins_h, _table_tangent(fr, t_.tangent), roughness) * t_.yarn
-                      for t_ in texels]
-            g_k = [g_of(sggx.projected_area(wi, t_.tangent, roughness),
-                        sggx.projected_area(wo, t_.tangent, roughness)) for t_ in texels]
+            # The base (mean D over the footprint times a visibility) and the visibility
+            # w_bar of the residual's control variate, where it is not each texel's v_bar.
+            w_bar = None
             if fibre.use_visibility:
                 # Alg. 4's visibility: the mean v_c of the residual texels' clusters.
-                texel_mean = sum(vbar_p) * (1.0 / len(vbar_p))
-                vbar_spec = vbar_p
+                texel_mean = sum(vbar_p) * (1.0 / n)
                 if fd.per_cluster:
                     base = mi.Float(0.0)
                     for c in range(fd.clusters):
-                        base += st.cvis_i[c] * cvis_o[c] * fd.d_integral(st.q, *bins_h, c)
+                        base += st.cvis_i[c] * cvis_o[c] * fd.d_integral(st.q, bins, weights, c)
                     base *= st.inv_area
                 elif fd.d_cluster_tile is not None:
                     # Each cluster's visibility weighted by its share of the footprint's D:
                     # its share of the footprint times its mean D over the tile. Exact for
                     # footprints of whole tiles; Alg. 4's texel_mean (the fallback) is off
                     # by -Cov(D, v) at every size (docs/performance-log.md L3).
-                    m_c = fd.cluster_d_means(*bins_h)
+                    m_c = fd.cluster_d_means(bins, weights)
                     num = mi.Float(0.0)
                     den = mi.Float(0.0)
                     for c in range(fd.clusters):
                         w_c = st.fractions[c] * m_c[c]
                         num += w_c * st.cvis_i[c] * cvis_o[c]
                         den += w_c
-                    w_bar = dr.select(den > 0.0, num / dr.select(den > 0.0, den, 1.0), texel_mean)
-                    base = d_yarn * w_bar
+                    w_bar_d = dr.select(den > 0.0, num / dr.select(den > 0.0, den, 1.0), texel_mean)
+                    base = d_yarn * w_bar_d
                     if self.CONSISTENT_VISIBILITY_CV:
                         # Below a tile the residual's control variate takes the base's own
                         # visibility, so base + residual is unbiased at every size; each
@@ -581,31 +592,52 @@ class FootprintEstimator:
                         # (bench/footprint_bias_scan.py, docs/performance-log.md L15).
                         x0, y0, x1, y1 = st.fp.box
                         whole_tiles = (x1 - x0 >= fibre.tile.width.f) & (y1 - y0 >= fibre.tile.height.f)
-                        vbar_spec = [dr.select(whole_tiles, vb, w_bar) for vb in vbar_p]
+                        w_bar = (whole_tiles, w_bar_d)
                 else:
                     base = d_yarn * texel_mean
-                residual = mi.Float(0.0)
-                for d, db, g, v, vbar in zip(d_k, dbin_k, g_k, v_p, vbar_spec):
-                    residual += d * v * g - db * vbar * g_bar
-                # An unbiased control-variate estimate: it can dip below zero for the
-                # residual texels (V(p) = 0 under a bright base); clamping it biased
-                # grazing highlights by up to +90% (docs/performance-log.md L3), so we do not.
-                spec = base * g_bar + residual * (1.0 / len(texels))
             else:
-                residual = mi.Float(0.0)
-                for d, db, g in zip(d_k, dbin_k, g_k):
-                    residual += d * g - db * g_bar
-                spec = d_yarn * g_bar + residual * (1.0 / len(texels))
+                base = d_yarn
+
+        def texel_terms(t_, vbar):
+            """One residual texel's (specular residual, diffuse residual / n, specular pdf)."""
+            residual = yarn_v = pdf_spec = mi.Float(0.0)
+            if fibre.use_visibility:
+                v = t_.v_i * fibre.visibility_o(t_, wo)
+                if diffuse:
+                    yarn_v = t_.yarn * (v - vbar) * (1.0 / n)
+            if specular:
+                d = sggx.ndf(h, t_.tangent, roughness) * t_.yarn
+                # The same texel's D as the tables bin it (its tangent in the tables'
+                # frame): the control variate that removes the bins' bias from the base.
+                d_bin = fd.binned_ndf(centres, weights, _table_tangent(fr, t_.tangent), roughness) * t_.yarn
+                g = g_of(sggx.projected_area(wi, t_.tangent, roughness),
+                         sggx.projected_area(wo, t_.tangent, roughness))
+                if fibre.use_visibility:
+                    vbar_spec = vbar if w_bar is None else dr.select(w_bar[0], vbar, w_bar[1])
+                    residual = d * v * g - d_bin * vbar_spec * g_bar
+                else:
+                    residual = d * g - d_bin * g_bar
+                pdf_spec = samplers.specular_pdf(roughness, wi, wo, t_.tangent, fold)
+            return residual, yarn_v, pdf_spec
+
+        residual, yarn_v, pdf_spec = self._texel_sums(texels, vbar_p, texel_terms, 3,
+                                                      unrolled or not self.LOOP_TEXELS)
+        value, under_fuzz = fibre.sheen_and_fuzz(fr, wo, enabled)
+        reflection = mi.Color3f(0.0)
+        transmission = mi.Color3f(0.0)
+        if specular:
+            # An unbiased control-variate estimate: it can dip below zero for the
+            # residual texels (V(p) = 0 under a bright base); clamping it biased
+            # grazing highlights by up to +90% (docs/performance-log.md L3), so we do not.
+            spec = base * g_bar + residual * (1.0 / n)
             if enabled[SPECULAR_REFLECTION]:
                 reflection += k.specular_albedo * yarn_albedo * spec
             if enabled[SPECULAR_TRANSMISSION]:
                 transmission += k.specular_transmittance * yarn_albedo * spec
-        if enabled[DIFFUSE_REFLECTION] or enabled[DIFFUSE_TRANSMISSION]:
+        if diffuse:
             if fibre.use_visibility:
-                # Eq. 14 through the cluster histogram, plus the same residual texel.
-                yarn_visible = mi.Float(0.0)
-                for t_, v, vbar in zip(texels, v_p, vbar_p):
-                    yarn_visible += t_.yarn * (v - vbar) * (1.0 / len(texels))
+                # Eq. 14 through the cluster histogram, plus the same residual texels.
+                yarn_visible = yarn_v
                 for c in range(fd.clusters):
                     yarn_visible += st.cvis_i[c] * cvis_o[c] * st.fractions[c]
             else:
@@ -616,19 +648,49 @@ class FootprintEstimator:
             if enabled[DIFFUSE_TRANSMISSION]:
                 transmission += k.diffuse_transmittance * yarn_albedo * cosine
         value += under_fuzz * dr.select(up, reflection, transmission)
-        return dr.select(valid, value, 0.0)
 
-    def pdf(self, fr: ViewFrame, st: FootprintState, wo, enabled):
-        """Density of the footprint mixture's non-delta directions (mirrored frame)."""
-        wi = fr.wi
-        valid = (wi.z > spongecake.COS_EPSILON) & (dr.abs(wo.z) > spongecake.COS_EPSILON)
-        fibre = self.fibre
-        tangents = [t_.tangent for t_ in st.texels]
-        pdf = fibre.samplers.pdf(fibre.params.roughness, wi, wo, st.probs, tangents, enabled,
-                                 fibre.samplers.fold_share(fr.k, enabled))
+        pdf = samplers.pdf(roughness, wi, wo, st.probs, None, enabled, fold, specular_mean=pdf_spec * (1.0 / n))
         eps_c, eps_lower = st.eps_c, st.eps_lower
-        eps_side = dr.select(wo.z > 0.0, eps_c - eps_lower, eps_lower)
-        return dr.select(valid, (1.0 - eps_c) * pdf + eps_side * dr.abs(wo.z) * dr.inv_pi, 0.0)
+        eps_side = dr.select(up, eps_c - eps_lower, eps_lower)
+        pdf = (1.0 - eps_c) * pdf + eps_side * dr.abs(cos_o) * dr.inv_pi
+        return dr.select(valid, value, 0.0), dr.select(valid, pdf, 0.0)
+
+    @staticmethod
+    def _texel_sums(texels: list[Texel], vbars, terms, count: int, unrolled):
+        """The sums over the residual texels of ``terms(texel, v_bar)`` (a tuple of
+        ``count`` Floats; ``vbars``: each texel's v_bar, or None). In JIT variants a symbolic loop, so the traced code holds one copy of the
+        per-texel work instead of one per texel (3x3 on shiny cloth: performance log L40);
+        ``unrolled`` (where gradients flow) one copy each. Both add in texel order."""
+        if unrolled or len(texels) < 2 or not dr.is_jit_v(mi.Float):
+            sums = None
+            for t_, vbar in zip(texels, vbars or [None] * len(texels)):
+                terms_t = terms(t_, vbar)
+                sums = terms_t if sums is None else tuple(a + b for a, b in zip(sums, terms_t))
+            return sums
+        n = len(texels)
+        first = texels[0]
+        lanes = dr.width((first.tangent, first.yarn, vbars, first.vis))
+
+        def texel_at(i):
+            def field(name):
+                return pick([getattr(t_, name) for t_ in texels], i)
+
+            vis = first.vis
+            if isinstance(vis, (list, tuple)):
+                vis = [pick([t_.vis[j] for t_ in texels], i) for j in range(len(vis))]
+            elif vis is not None:
+                vis = field("vis")
+            texel = dataclasses.replace(first, tangent=field("tangent"), yarn=field("yarn"), vis=vis,
+                                        v_i=None if first.v_i is None else field("v_i"))
+            return texel, None if vbars is None else pick(vbars, i)
+
+        def body(i, sums):
+            return i + 1, tuple(a + b for a, b in zip(sums, terms(*texel_at(i))))
+
+        state = (dr.zeros(mi.UInt32, lanes), tuple(dr.zeros(mi.Float, lanes) for _ in range(count)))
+        _, sums = dr.while_loop(state=state, cond=lambda i, sums: i < n, body=body, labels=("i", "sums"),
+                                label="cloth_residual_texels")
+        return sums
 
     def sample(self, fr: ViewFrame, st: FootprintState, enabled, sample1, sample2, active):
         """A direction from the footprint mixture:

@@ -102,23 +102,32 @@ class LobeSamplers:
                 sheen_sampler = sheen.TabulatedSheenSampler.shared(alpha_s, thickness_s)
         return LobeSamplers(sheen=sheen_sampler, diffuse=diffuse)
 
-    def pdf(self, roughness, wi, wo, probs, tangents, enabled, fold):
+    @staticmethod
+    def specular_pdf(roughness, wi, wo, tangent, fold):
+        """Density of sampling the specular lobe on ``tangent``'s flakes, a share ``fold``
+        of its samples below the surface mirrored above; validity not masked."""
+        direct = spongecake.pdf_specular(wi, wo, tangent, roughness)
+        folded = spongecake.pdf_specular(wi, _mirrored(wo), tangent, roughness)
+        return dr.select(wo.z > 0.0, direct + fold * folded, (1.0 - fold) * direct)
+
+    def pdf(self, roughness, wi, wo, probs, tangents, enabled, fold, specular_mean=None):
         """Density of picking a lobe by ``probs`` and sampling it, the specular lobe from
-        one of ``tangents`` chosen uniformly, a share ``fold`` (:meth:`fold_share`) of its
-        samples below the surface mirrored above; validity not masked."""
+        one of ``tangents`` chosen uniformly (or, if given, its density ``specular_mean``
+        already averaged over them: :meth:`specular_pdf`), a share ``fold``
+        (:meth:`fold_share`) of its samples below the surface mirrored above; validity not
+        masked."""
         up = wo.z > 0.0
         pdf = mi.Float(0.0)
         if enabled[SHEEN]:
             pdf += probs[SHEEN] * self.sheen.pdf(wi, wo)
         if enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]:
             side_ok = (up & enabled[SPECULAR_REFLECTION]) | (logical_not(up) & enabled[SPECULAR_TRANSMISSION])
-            spec = mi.Float(0.0)
-            wo_mirrored = _mirrored(wo)
-            for t in tangents:
-                direct = spongecake.pdf_specular(wi, wo, t, roughness)
-                folded = spongecake.pdf_specular(wi, wo_mirrored, t, roughness)
-                spec += dr.select(up, direct + fold * folded, (1.0 - fold) * direct)
-            pdf += probs[SPECULAR_REFLECTION] * dr.select(side_ok, spec * (1.0 / len(tangents)), 0.0)
+            if specular_mean is None:
+                spec = mi.Float(0.0)
+                for t in tangents:
+                    spec += self.specular_pdf(roughness, wi, wo, t, fold)
+                specular_mean = spec * (1.0 / len(tangents))
+            pdf += probs[SPECULAR_REFLECTION] * dr.select(side_ok, specular_mean, 0.0)
         if enabled[DIFFUSE_REFLECTION] or enabled[DIFFUSE_TRANSMISSION]:
             diffuse = self.diffuse.pdf(wo)
             if enabled[DIFFUSE_REFLECTION]:
