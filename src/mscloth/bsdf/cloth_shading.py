@@ -14,6 +14,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ..scattering import spongecake
+from ..lanes import pick
 from .fibre_bsdf import FibreBSDF, edges_in_texels
 from .footprint_estimator import FootprintEstimator
 from .lobes import GAP, SHEEN, lobe_types
@@ -59,14 +60,8 @@ def eval_pdf_each(eval_pdf, directions, gradients=False, loop=True):
         return _unzip([eval_pdf(wo, gradients) for wo in directions])
     lanes = dr.width(directions)
 
-    def pick(i):
-        wo = directions[0]
-        for k in range(1, n):
-            wo = dr.select(i == k, directions[k], wo)
-        return wo
-
     def body(i, values, pdfs):
-        value, pdf = eval_pdf(pick(i), False)
+        value, pdf = eval_pdf(pick(directions, i), False)
         values = tuple(dr.select(i == k, value, old) for k, old in enumerate(values))
         pdfs = tuple(dr.select(i == k, pdf, old) for k, old in enumerate(pdfs))
         return i + 1, values, pdfs

@@ -508,13 +508,10 @@ class FootprintEstimator:
         """Footprint-averaged non-delta f*|cos o| (Eq. 9-14 with CCV), mirrored frame."""
         return self.eval_pdf(fr, st, wo, enabled, unrolled=True)[0]
 
-    def pdf(self, fr: ViewFrame, st: FootprintState, wo, enabled):
-        """Density of the footprint mixture's non-delta directions (mirrored frame)."""
-        return self.eval_pdf(fr, st, wo, enabled, unrolled=True)[1]
-
     def eval_pdf(self, fr: ViewFrame, st: FootprintState, wo, enabled, unrolled=False):
-        """(:meth:`eval`, :meth:`pdf`) at ``wo`` (mirrored frame), their residual texels'
-        terms in one pass (:meth:`_texel_sums`: a symbolic loop unless ``unrolled``)."""
+        """(:meth:`eval`, the density of the footprint mixture's non-delta directions) at
+        ``wo`` (mirrored frame), their residual texels' terms in one pass
+        (:meth:`_texel_sums`: a symbolic loop unless ``unrolled``)."""
         fibre = self.fibre
         fd = fibre.footprint_data
         roughness, thickness = fibre.params.roughness, fibre.params.thickness
@@ -658,9 +655,10 @@ class FootprintEstimator:
     @staticmethod
     def _texel_sums(texels: list[Texel], vbars, terms, count: int, unrolled):
         """The sums over the residual texels of ``terms(texel, v_bar)`` (a tuple of
-        ``count`` Floats; ``vbars``: each texel's v_bar, or None). In JIT variants a symbolic loop, so the traced code holds one copy of the
-        per-texel work instead of one per texel (3x3 on shiny cloth: performance log L40);
-        ``unrolled`` (where gradients flow) one copy each. Both add in texel order."""
+        ``count`` Floats; ``vbars``: each texel's v_bar, or None). In JIT variants a
+        symbolic loop, so the traced code holds one copy of the per-texel work instead of
+        one per texel (3x3 on shiny cloth: performance log L40); ``unrolled`` (where
+        gradients flow) one copy each. Both add in texel order."""
         if unrolled or len(texels) < 2 or not dr.is_jit_v(mi.Float):
             sums = None
             for t_, vbar in zip(texels, vbars or [None] * len(texels)):
