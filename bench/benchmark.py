@@ -16,6 +16,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 #: The checkout: its src/ comes first on the path, so the package measured is this one.
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
@@ -142,7 +144,6 @@ def bench_bsdf_calls(lanes: int = 1 << 21, repeats: int = 7) -> list[tuple[str, 
     directions in the upper hemisphere, evaluated directions anywhere."""
     import drjit as dr
     import mitsuba as mi
-    import numpy as np
 
     from mscloth.integrators.bsdf_contract import eval_pdf_sample_n
     from mscloth.jit_arrays import lane_values
@@ -299,16 +300,51 @@ def bench_compare(scenes=None, res=COMPARE_RES, budget: float = COMPARE_BUDGET,
     """`mscloth compare` on each of ``scenes`` (default: every built-in scene); (scene, its
     JSON figures)."""
     from mscloth.evaluation.compare import run_compare
+    from mscloth.evaluation.error_budget import interleaved_renders
     from mscloth.scenes.builtin import SCENES
 
     rows = []
     for name in (SCENES if scenes is None else scenes):
         out = Path(out_root) / f"compare-{name}"
         result = run_compare(name, *res, budget=budget, out_dir=out, quiet=True)
+        result["frame_time"] = interleaved_renders(name, *res, FRAME_SPPS, FRAME_TIME_ROUNDS)
         rows.append((name, result))
-        print("  " + name + ": " + ", ".join(f"{g} {result[g]['speedup']:.2f}x" for g in ("near", "middle", "far")),
+        print("  " + name + ": " + ", ".join(f"{g} {result[g]['speedup']:.2f}x, at interleaved time "
+                                           f"{interleaved_speedup(result, g)[0]:.2f}x" for g in ("near", "middle", "far")),
               flush=True)
     return rows
+
+
+#: The whole frame rendered by both methods in interleaved rounds, at compare's multi-scale
+#: spp and four times it (a render's fixed cost and its cost per sample): ~10-150 s per scene.
+FRAME_SPPS, FRAME_TIME_ROUNDS = (16, 64), 4
+
+
+def frame_time_ratios(result: dict) -> list[float]:
+    """Each round's whole-frame time ratio multi-scale / brute force at the first of
+    :data:`FRAME_SPPS` (``result["frame_time"]``, :func:`~mscloth.evaluation.error_budget.interleaved_renders`)."""
+    t = result["frame_time"]
+    spp = min(t["multiscale"])
+    return [a / b for a, b in zip(t["multiscale"][spp], t["bruteforce"][spp])]
+
+
+def interleaved_speedup(result: dict, region: str) -> tuple[float, float, float]:
+    """(median, lowest, highest) over the rounds of ``result["frame_time"]`` of ``region``'s
+    equal-error speed-up with their times: brute force's seconds at the samples it needs to
+    reach multi-scale's error (read off its error-vs-spp curve, which holds no timing) over
+    multi-scale's seconds at its spp, each from the line through the round's two renders
+    (:func:`~mscloth.evaluation.speedup.time_at`)."""
+    from mscloth.evaluation.speedup import time_at
+
+    r, t = result[region], result["frame_time"]
+    spps = sorted(t["multiscale"])
+
+    def seconds(method, spp, k):
+        return time_at(spp, spps, [t[method][n][k] for n in spps])
+
+    speedups = [seconds("bruteforce", r["spp_bruteforce_equal_error"], k) / seconds("multiscale", r["spp_multiscale"], k)
+                for k in range(len(t["multiscale"][spps[0]]))]
+    return float(np.median(speedups)), min(speedups), max(speedups)
 
 
 #: The scenes whose error the benchmark takes apart: the targets of issue 5 (plane, sphere)
@@ -358,10 +394,12 @@ def _summary_lines(compare_rows, budget_rows) -> list[str]:
         "[v_bf / (b^2 + v_ms / n)] / n x t_bf / t_ms (docs/design.md §4.6); the noise-only speed-up is it",
         "without the bias. Error-budget figures (next section) for the scenes in its table only.",
         "",
-        "The whole frame's time ratio is every region's in `compare`. The region's own: both",
-        "methods render only the bounding box of the region's pixels (a film crop; on the spheres",
-        "it holds floor too), 16 spp, interleaved, median of 5 rounds (lowest-highest); the last",
-        "column is the noise-only speed-up at that ratio: what the region would gain rendered alone.",
+        "The whole frame's time ratio is every region's in `compare`; the noise-only speed-up is",
+        "at the whole frame's ratio from interleaved rounds (the speed-up table's). The region's",
+        "own: both methods render only the bounding box of the region's pixels (a film crop; on",
+        "the spheres it holds floor too), 16 spp, interleaved, median of 5 rounds (lowest-highest);",
+        "the last column is the noise-only speed-up at that ratio: what the region would gain",
+        "rendered alone.",
         "",
         "| scene | region | speed-up | bias^2, multi-scale | noise per sample: multi-scale / brute force "
         "| time per sample ms: multi-scale / brute force | noise-only speed-up "
@@ -377,8 +415,7 @@ def _summary_lines(compare_rows, budget_rows) -> list[str]:
                 b = budget[g]
                 bias = f"{next(iter(b['bias'].values())):.2g}"
                 noise = f"{b['noise']['multiscale']['both']:.3g} / {b['noise']['bruteforce']['both']:.3g}"
-                ratio = r["seconds_multiscale"] / r["seconds_bruteforce_equal_spp"]
-                only = f"{noise_only_speedup(b['noise'], ratio):.2f}x"
+                only = f"{noise_only_speedup(b['noise'], float(np.median(frame_time_ratios(result)))):.2f}x"
             else:
                 bias = noise = only = "not measured"
             own = own_only = "not measured"
@@ -400,7 +437,7 @@ def _budget_lines(budget_rows, compare_rows, res=COMPARE_RES) -> list[str]:
     for name, budget in budget_rows:
         for g in ("near", "middle", "far"):
             r = speedups[name][g]
-            cells.append((name, g, budget[g], r, r["seconds_multiscale"] / r["seconds_bruteforce_equal_spp"]))
+            cells.append((name, g, budget[g], r, float(np.median(frame_time_ratios(speedups[name])))))
     lines = [
         "",
         f"## Why: noise per sample and bias (`mscloth.evaluation.error_budget`, {res[0]}x{res[1]})",
@@ -410,14 +447,15 @@ def _budget_lines(budget_rows, compare_rows, res=COMPARE_RES) -> list[str]:
         "sun and the sky, the sun alone, the sky alone (same relMSE normalisation, so the parts",
         f"roughly add up). Squared bias: two independent {BIAS_SPP // 2} spp halves against the reference",
         "(unbiased estimate; brute force's should be ~0). Noise-only speed-up: brute force's noise",
-        "over multi-scale's, over the time-per-sample ratio at 16 spp (from the table above): the",
+        "over multi-scale's, over the whole frame's time-per-sample ratio at 16 spp (interleaved",
+        "rounds, from the speed-up table): the",
         "speed-up if multi-scale had no bias and both methods' errors fell as 1/spp. Under a",
         "stratified pixel sampler (the built-in scenes' `multijitter`) brute force's falls faster",
         "(its noise is the weave's, which stratification removes), so the measured speed-up can",
         "be below that bound even where multi-scale's bias is small.",
         "",
         "| scene | region | noise, multi-scale: sun / sky / both | noise, brute force: sun / sky / both "
-        "| time per sample ms / bf | noise-only speed-up | measured speed-up "
+        "| time per sample / bf, interleaved | noise-only speed-up | measured speed-up, interleaved time "
         "| bias^2: " + " / ".join(label.replace("multiscale", "multi-scale").replace("bruteforce", "brute force")
                                   for label in budget_rows[0][1]["near"]["bias"]) + " |",
         "|---|---|---|---|---|---|---|---|",
@@ -427,7 +465,7 @@ def _budget_lines(budget_rows, compare_rows, res=COMPARE_RES) -> list[str]:
                            for m in ("multiscale", "bruteforce"))
         bias = " / ".join(f"{v:.2g}" for v in b["bias"].values())
         lines.append(f"| {name} | {g} | {noise} | {ratio:.2f} | {noise_only_speedup(b['noise'], ratio):.2f}x "
-                     f"| {r['speedup']:.2f}x | {bias} |")
+                     f"| {interleaved_speedup(speedups[name], g)[0]:.2f}x | {bias} |")
 
     def span(values):
         lo, hi = f"{min(values):.2g}", f"{max(values):.2g}"
@@ -566,19 +604,34 @@ def _compare_lines(compare_rows, budget_rows, res, budget) -> list[str]:
         "multi-scale error at its spp, over multi-scale's time. relMSE against a 1024 spp",
         "brute-force reference; reports in out/compare-SCENE/report.html.",
         "",
+        "Each method's curve is timed on its own, one after the other, and this shared machine's",
+        "speed drifts by tens of percent within minutes. The next column times both methods in",
+        f"{FRAME_TIME_ROUNDS} interleaved rounds instead, each round rendering the whole frame at "
+        f"{FRAME_SPPS[0]} and {FRAME_SPPS[1]} spp",
+        "with both (after compilation): a render's time is a fixed cost plus a cost per sample,",
+        "the line through the round's two renders. Speed-up: brute force's time at the samples",
+        "it needs to reach multi-scale's error (read off its error-vs-spp curve, which holds no",
+        "timing) over multi-scale's at its spp; the median over the rounds and their range.",
+        f"Then the rounds' time ratio at {FRAME_SPPS[0]} spp, multi-scale / brute force. Compare code by these columns.",
+        "",
         "The last two columns split the speed-up into its factors: brute force at multi-scale's",
         "spp (error per sample; time per sample), and brute force at 256 spp (the second target).",
         "",
-        "| scene | region | speed-up | multi-scale spp / relMSE / s | brute force (equal time) spp / relMSE / s "
+        "| scene | region | speed-up | speed-up, interleaved time (range) | frame's time / bf, interleaved "
+        "(range) | multi-scale spp / relMSE / s | brute force (equal time) spp / relMSE / s "
         "| brute force, equal spp: relMSE / s | brute force, 256 spp: relMSE |",
-        "|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for name, result in compare_rows:
         for g in ("near", "middle", "far"):
             r = result[g]
             at_256 = [p for p in r["curve_bruteforce"] if p["spp"] == 256]
             # Three significant digits: converged regions reach 1e-5 and below.
-            lines.append(f"| {name} | {g} | {r['speedup']:.2f}x | {r['spp_multiscale']} / {r['relmse_multiscale']:.3g} / "
+            fast, low, high = interleaved_speedup(result, g)
+            ratios = frame_time_ratios(result)
+            lines.append(f"| {name} | {g} | {r['speedup']:.2f}x | {fast:.2f}x ({low:.2f}-{high:.2f}) | "
+                         f"{np.median(ratios):.2f} ({min(ratios):.2f}-{max(ratios):.2f}) | "
+                         f"{r['spp_multiscale']} / {r['relmse_multiscale']:.3g} / "
                          f"{r['seconds_multiscale']:.2f} | {r['spp_bruteforce']} / {r['relmse_bruteforce']:.3g} / "
                          f"{r['seconds_bruteforce']:.2f} | {r['relmse_bruteforce_equal_spp']:.3g} / "
                          f"{r['seconds_bruteforce_equal_spp']:.2f} | "

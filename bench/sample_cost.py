@@ -31,7 +31,7 @@ def main(argv=None) -> int:
     parser.add_argument("--region", choices=("near", "middle", "far"), help="time this region's bounding box only")
     args = parser.parse_args(argv)
     mi = setup_mitsuba()
-    from mscloth.evaluation.error_budget import LIGHTS, lit_scene
+    from mscloth.evaluation.error_budget import LIGHTS, interleaved_rounds, lit_scene
     from mscloth.evaluation.renders import timed_render
 
     width, height = (int(v) for v in args.res.split("x"))
@@ -52,14 +52,18 @@ def main(argv=None) -> int:
         finally:
             set_class_attributes(saved)
         scenes.append((label, attrs, scene))
-    seconds = {label: [] for label, _, _ in scenes}
-    for r in range(args.rounds):
-        for label, attrs, scene in scenes:
+
+    def seconds_per_spp(attrs, scene):
+        def render(r):
             saved = set_class_attributes(attrs)
             try:
-                seconds[label].append(timed_render(scene, args.spp, 100 + r).seconds / args.spp)
+                return timed_render(scene, args.spp, 100 + r).seconds / args.spp
             finally:
                 set_class_attributes(saved)
+        return render
+
+    seconds = interleaved_rounds({label: seconds_per_spp(attrs, scene) for label, attrs, scene in scenes},
+                                 args.rounds)
     bf = np.array(seconds["brute force"])
     where = f", {args.region} region's box" if args.region else ""
     print(f"| {args.scene} ({args.res}{where}, {args.spp} spp) | s per spp (median) | / brute force (median, range) |")

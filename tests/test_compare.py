@@ -18,7 +18,7 @@ from mscloth.evaluation import compare, references, speedup
 from mscloth.evaluation.metrics import relmse
 from mscloth.evaluation.references import ReferenceCacheWarning, reference_image, reference_path
 from mscloth.evaluation.regions import REGIONS, region_masks
-from mscloth.evaluation.speedup import closest_in_time, equal_error_time
+from mscloth.evaluation.speedup import closest_in_time, equal_error_time, time_at
 
 mscloth.register()
 
@@ -107,6 +107,17 @@ def test_equal_error_time_is_exact_on_power_laws_and_flags_extrapolation():
     assert closest_in_time([0.01, 0.1, 1.0], 0.2) == 1 and closest_in_time([0.01, 0.1, 1.0], 0.5) == 2
 
 
+def test_time_at_is_the_line_through_two_renders():
+    """A render's fixed cost plus its cost per sample, through two timed renders; timing
+    noise that makes the second render the faster one costs no sample anything."""
+    assert time_at(16, (16, 64), (0.2, 0.68)) == pytest.approx(0.2)
+    assert time_at(256, (16, 64), (0.2, 0.68)) == pytest.approx(0.04 + 0.01 * 256)
+    assert time_at(4, (64, 16), (0.68, 0.2)) == pytest.approx(0.04 + 0.01 * 4)
+    assert time_at(1000, (16, 64), (0.3, 0.29)) == pytest.approx(0.3)
+    with pytest.raises(ValueError, match="two different sample counts"):
+        time_at(8, (16, 16), (0.2, 0.3))
+
+
 def _synthetic_points(times, errors_per_region, spps):
     return [{"spp": s, "seconds": t, "compile_seconds": 0.0, "seed": i,
              "relmse": {g: e[g] for g in REGIONS}, "flip": {g: 0.1 for g in REGIONS}}
@@ -129,6 +140,8 @@ def test_region_figures_give_the_exact_ratio_on_c_over_t_curves():
     for g in REGIONS:
         assert figures[g]["speedup"] == pytest.approx(wanted[g], rel=1e-9)
         assert figures[g]["spp_multiscale"] == 16 and figures[g]["spp_bruteforce"] == 8
+        # the samples brute force needs, read off its error-vs-spp curve (1 spp = 0.01 s)
+        assert figures[g]["spp_bruteforce_equal_error"] == pytest.approx(10.0 * wanted[g], rel=1e-9)
         assert figures[g]["extrapolated"] is (0.1 * wanted[g] > bf_t[-1])
     assert figures["far"]["extrapolated"] and not figures["near"]["extrapolated"]
 

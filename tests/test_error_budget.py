@@ -76,10 +76,12 @@ def test_region_time_renders_each_region_s_box_alone(monkeypatch, tmp_path):
     """Each region's crop is the bounding box of its pixels, and region_time renders that box
     alone (an image of the crop's size) with both methods: positive seconds, and the ratio
     of the rounds' medians."""
+    from mscloth import setup_mitsuba
     from mscloth.evaluation.error_budget import lit_scene, region_crops, region_time
     from mscloth.evaluation.regions import depth_and_cloth, region_masks
     from mscloth.evaluation.renders import timed_render
 
+    setup_mitsuba()  # lit_scene loads clothpath (run alone, no other test has)
     monkeypatch.setenv("MSCLOTH_CACHE", str(tmp_path / "cache"))
     masks = region_masks(*depth_and_cloth("plane", 48, 27))[0]
     crops = region_crops("plane", 48, 27)
@@ -99,3 +101,21 @@ def test_region_time_renders_each_region_s_box_alone(monkeypatch, tmp_path):
         t = timing[g]
         assert t["multiscale"] > 0.0 and t["bruteforce"] > 0.0 and len(t["ratios"]) == 2
         assert t["ratio"] == pytest.approx(float(np.median(t["ratios"])))
+
+
+def test_interleaved_rounds_call_each_render_once_per_round_in_order():
+    """Round after round, every render once in the given order: a drifting machine then
+    moves one round's values together."""
+    from mscloth.evaluation.error_budget import interleaved_rounds
+
+    calls = []
+
+    def render(label):
+        def call(r):
+            calls.append((label, r))
+            return 10 * r + len(calls)
+        return call
+
+    values = interleaved_rounds({"a": render("a"), "b": render("b")}, 3)
+    assert calls == [("a", 0), ("b", 0), ("a", 1), ("b", 1), ("a", 2), ("b", 2)]
+    assert values == {"a": [1, 13, 25], "b": [2, 14, 26]}

@@ -115,8 +115,9 @@ def region_figures(points_ms, points_bf, spp_ms_chosen, floor) -> tuple[dict, in
         target = ms["relmse"][g]
         t_equal, extrapolated = equal_error_time(bf_times, [max(p["relmse"][g], 1e-30) for p in points_bf],
                                                  max(target, 1e-30))
-        # spp brute force would need at that time, from its measured seconds per spp
-        per_spp = np.median([p["seconds"] / p["spp"] for p in points_bf])
+        # spp brute force needs for that error, from its error-vs-spp curve: no timing in it
+        spp_equal, _ = equal_error_time([p["spp"] for p in points_bf],
+                                        [max(p["relmse"][g], 1e-30) for p in points_bf], max(target, 1e-30))
         same = min(points_bf, key=lambda p: (abs(math.log(p["spp"] / ms["spp"])), p["spp"]))
         out[g] = {
             "speedup": t_equal / ms["seconds"],
@@ -131,7 +132,7 @@ def region_figures(points_ms, points_bf, spp_ms_chosen, floor) -> tuple[dict, in
             "seconds_multiscale": ms["seconds"],
             "seconds_bruteforce": bf["seconds"],
             "seconds_bruteforce_equal_error": t_equal,
-            "spp_bruteforce_equal_error": t_equal / per_spp,
+            "spp_bruteforce_equal_error": spp_equal,
             # diagnostics: brute force at (or nearest to) multi-scale's spp -- error per sample
             # and cost per sample, the two factors of the speed-up
             "spp_bruteforce_equal_spp": same["spp"],

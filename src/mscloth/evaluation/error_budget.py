@@ -19,10 +19,13 @@ With noise alone (no bias), the equal-error speed-up would be
 (v_bruteforce / v_multiscale) / (time per sample, multi-scale / brute force): the bound the
 benchmark reports next to the measured speed-up.
 
-* **Time per sample, per region** (:func:`region_time`). ``compare`` times whole frames, so
-  a region's speed-up carries the whole frame's time ratio. Rendering only the bounding box
-  of a region's pixels (a film crop) gives the region's own ratio: multi-scale's extra work
-  is where the footprints are shaded whole, not everywhere.
+* **Time per sample** (:func:`interleaved_time`), the two methods' renders interleaved in
+  rounds: a shared machine's speed drifts by tens of percent within minutes, and
+  ``compare`` renders one method's curve after the other's. Of the whole frame, and per
+  region (:func:`region_time`): ``compare`` times whole frames, so a region's speed-up
+  carries the whole frame's time ratio. Rendering only the bounding box of a region's
+  pixels (a film crop) gives the region's own ratio: multi-scale's extra work is where the
+  footprints are shaded whole, not everywhere.
 
 The estimators (noise per sample, squared bias) are in :mod:`.metrics`.
 """
@@ -121,28 +124,52 @@ def region_crops(name: str, width: int, height: int) -> dict:
     return crops
 
 
-def region_time(name: str, width: int, height: int, spp: int = NOISE_SPP, rounds: int = 3) -> dict:
-    """Per region of scene ``name``: seconds per spp of multi-scale and brute force rendering
-    the region's bounding box alone, with the scene's sun and sky (medians over ``rounds``
-    rounds, the methods interleaved in each, after a render that compiles), and the ratio
-    multi-scale / brute force of each round: {region: {"multiscale", "bruteforce": seconds,
-    "ratio": median, "ratios": [per round]}}."""
+def interleaved_rounds(renders: dict, rounds: int) -> dict:
+    """{label: [one value per round]}: each of ``renders`` (label: a function of the round's
+    number) called once per round, in order, round after round. The machine's drift moves a
+    round's values together, so ratios within a round are steadier than any one time."""
+    values = {label: [] for label in renders}
+    for r in range(rounds):
+        for label, render in renders.items():
+            values[label].append(render(r))
+    return values
+
+
+def interleaved_renders(name: str, width: int, height: int, spps=(NOISE_SPP,), rounds: int = 3,
+                        crop=None) -> dict:
+    """Seconds of each render of scene ``name`` with its sun and sky (the film's ``crop``
+    alone if given), multi-scale and brute force at each of ``spps``, after a render of each
+    that compiles, in :func:`interleaved_rounds`: {method: {spp: [seconds, one per round]}}."""
     setup_mitsuba()
-    out = {}
-    for g, crop in region_crops(name, width, height).items():
-        scenes = {m: lit_scene(name, width, height, m == "multiscale", crop=crop) for m in ("multiscale", "bruteforce")}
-        for scene in scenes.values():
+    scenes = {m: lit_scene(name, width, height, m == "multiscale", crop=crop) for m in ("multiscale", "bruteforce")}
+    renders = {}
+    for spp in spps:
+        for m, scene in scenes.items():
             timed_render(scene, spp, 1)  # compile
-        seconds = {m: [] for m in scenes}
-        for r in range(rounds):
-            for m, scene in scenes.items():
-                seconds[m].append(timed_render(scene, spp, 100 + r).seconds / spp)
-        ratios = [a / b for a, b in zip(seconds["multiscale"], seconds["bruteforce"])]
-        out[g] = {"multiscale": float(np.median(seconds["multiscale"])), "bruteforce": float(np.median(seconds["bruteforce"])),
-                  "ratio": float(np.median(ratios)), "ratios": ratios}
-        del scenes
-        gc.collect()
-    return out
+            renders[m, spp] = lambda r, scene=scene, spp=spp: timed_render(scene, spp, 100 + r).seconds
+    seconds = interleaved_rounds(renders, rounds)
+    del scenes, renders
+    gc.collect()
+    return {m: {spp: seconds[m, spp] for spp in spps} for m in ("multiscale", "bruteforce")}
+
+
+def interleaved_time(name: str, width: int, height: int, spp: int = NOISE_SPP, rounds: int = 3,
+                     crop=None) -> dict:
+    """Seconds per spp of multi-scale and brute force (:func:`interleaved_renders` at
+    ``spp``): {"multiscale", "bruteforce": medians over the rounds, "ratio": the median of
+    the rounds' ratios multi-scale / brute force, "ratios": each round's}."""
+    seconds = {m: np.asarray(t[spp]) / spp for m, t in
+               interleaved_renders(name, width, height, (spp,), rounds, crop).items()}
+    ratios = [float(a / b) for a, b in zip(seconds["multiscale"], seconds["bruteforce"])]
+    return {"multiscale": float(np.median(seconds["multiscale"])), "bruteforce": float(np.median(seconds["bruteforce"])),
+            "ratio": float(np.median(ratios)), "ratios": ratios}
+
+
+def region_time(name: str, width: int, height: int, spp: int = NOISE_SPP, rounds: int = 3) -> dict:
+    """{region: :func:`interleaved_time` of the bounding box of the region's pixels alone}."""
+    setup_mitsuba()  # before region_crops renders
+    return {g: interleaved_time(name, width, height, spp, rounds, crop)
+            for g, crop in region_crops(name, width, height).items()}
 
 
 def noise_only_speedup(noise: dict, seconds_ratio: float) -> float:

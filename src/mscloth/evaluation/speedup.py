@@ -48,6 +48,8 @@ def equal_error_time(seconds, errors, target: float) -> tuple[float, bool]:
     Linear interpolation in log-log between the points around the first crossing below
     ``target``; if the curve never gets there (or starts below it), extrapolation from
     its last (first) point with slope -1 (error ~ 1/time). Returns (seconds, extrapolated).
+    Any cost that grows along the curve will do for ``seconds``: with sample counts it gives
+    the samples a method needs to reach ``target``.
     """
     t = np.asarray(seconds, dtype=np.float64)
     e = np.asarray(errors, dtype=np.float64)
@@ -73,3 +75,15 @@ def closest_in_time(seconds, target: float) -> int:
     """Index of the curve point whose time is closest to ``target`` (in log time)."""
     t = np.asarray(seconds, dtype=np.float64)
     return int(np.argmin(np.abs(np.log(t) - math.log(target))))
+
+
+def time_at(spp: float, spps, seconds) -> float:
+    """A render's seconds at ``spp`` samples per pixel, on the line through two measured
+    renders of the same frame, ``spps[i]`` spp in ``seconds[i]``: a fixed cost per render
+    (tracing the kernel, reading the image back) and a cost per sample. A negative slope
+    (timing noise between two close counts) counts as none."""
+    (n0, n1), (t0, t1) = spps, seconds
+    if n0 == n1:
+        raise ValueError(f"need two different sample counts, got {n0} twice")
+    per_sample = max((t1 - t0) / (n1 - n0), 0.0)
+    return float(t0 + per_sample * (spp - n0))
