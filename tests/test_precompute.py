@@ -875,6 +875,49 @@ def test_bad_cache_is_rebuilt_with_a_warning(maps_sq, tmp_path, damage):
         _assert_same(t1, load_or_build(maps_sq, 0.3, cache_dir=tmp_path, **CACHE_KW))
 
 
+def test_concurrent_loads_build_one_table_at_a_time_and_the_same_tables_once(maps_sq, tmp_path, monkeypatch):
+    """Mitsuba's parallel loader constructs cloths on several threads: their table builds run
+    one after another (each already spreads over every core), and a thread that waited for
+    tables another thread built meanwhile loads them instead of building them again."""
+    import threading
+    import time
+
+    real_build = tables_mod.build_tables
+    running, spans = [], []
+    guard = threading.Lock()
+
+    def build(*args, **kwargs):
+        with guard:
+            running.append(1)
+            overlapping = len(running) > 1
+        start = time.perf_counter()
+        time.sleep(0.05)  # long enough for the other threads to arrive
+        try:
+            return real_build(*args, **kwargs)
+        finally:
+            with guard:
+                running.pop()
+                spans.append((start, time.perf_counter(), overlapping))
+
+    monkeypatch.setattr(tables_mod, "build_tables", build)
+    results = {}
+
+    def load(name, roughness):
+        results[name] = load_or_build(maps_sq, roughness, cache_dir=tmp_path, **CACHE_KW)
+
+    threads = [threading.Thread(target=load, args=(name, r))
+               for name, r in (("a", 0.3), ("b", 0.3), ("c", 0.45), ("d", 0.3))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(spans) == 2, spans  # 0.3 once, 0.45 once
+    assert not any(overlapping for _, _, overlapping in spans)
+    for name in "bd":
+        _assert_same(results["a"], results[name])
+    assert results["c"].key != results["a"].key
+
+
 def test_default_cache_dir(monkeypatch, tmp_path, maps_sq):
     monkeypatch.setenv("MSCLOTH_CACHE", str(tmp_path / "c"))
     assert default_cache_dir() == tmp_path / "c"
