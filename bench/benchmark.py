@@ -307,7 +307,7 @@ def bench_compare(scenes=None, res=COMPARE_RES, budget: float = COMPARE_BUDGET,
     for name in (SCENES if scenes is None else scenes):
         out = Path(out_root) / f"compare-{name}"
         result = run_compare(name, *res, budget=budget, out_dir=out, quiet=True)
-        result["frame_time"] = interleaved_renders(name, *res, FRAME_SPPS, FRAME_TIME_ROUNDS)
+        result["frame_time"] = interleaved_renders(name, *res, frame_counts(result), FRAME_TIME_ROUNDS)
         rows.append((name, result))
         print("  " + name + ": " + ", ".join(f"{g} {result[g]['speedup']:.2f}x, at interleaved time "
                                            f"{interleaved_speedup(result, g)[0]:.2f}x" for g in ("near", "middle", "far")),
@@ -315,14 +315,27 @@ def bench_compare(scenes=None, res=COMPARE_RES, budget: float = COMPARE_BUDGET,
     return rows
 
 
-#: The whole frame rendered by both methods in interleaved rounds, at compare's multi-scale
-#: spp and four times it (a render's fixed cost and its cost per sample): ~10-150 s per scene.
-FRAME_SPPS, FRAME_TIME_ROUNDS = (16, 64), 4
+#: Interleaved rounds of both methods' whole frame (~10-60 s per scene).
+FRAME_TIME_ROUNDS = 4
+
+
+def frame_counts(result: dict) -> dict:
+    """The sample counts :func:`bench_compare` times in interleaved rounds, from ``compare``'s
+    figures ``result``: multi-scale at its spp; brute force at its curve's counts from that
+    spp up (at least two: the line between them prices any count)."""
+    r = result["near"]
+    spp = r["spp_multiscale"]
+    largest = max(p["spp"] for p in r["curve_bruteforce"])
+    counts, n = [spp], 2 * spp
+    while n <= largest or len(counts) < 2:
+        counts.append(n)
+        n *= 2
+    return {"multiscale": (spp,), "bruteforce": tuple(counts)}
 
 
 def frame_time_ratios(result: dict) -> list[float]:
-    """Each round's whole-frame time ratio multi-scale / brute force at the first of
-    :data:`FRAME_SPPS` (``result["frame_time"]``, :func:`~mscloth.evaluation.error_budget.interleaved_renders`)."""
+    """Each round's whole-frame time ratio multi-scale / brute force at multi-scale's spp
+    (``result["frame_time"]``, :func:`~mscloth.evaluation.error_budget.interleaved_renders`)."""
     t = result["frame_time"]
     spp = min(t["multiscale"])
     return [a / b for a, b in zip(t["multiscale"][spp], t["bruteforce"][spp])]
@@ -331,19 +344,16 @@ def frame_time_ratios(result: dict) -> list[float]:
 def interleaved_speedup(result: dict, region: str) -> tuple[float, float, float]:
     """(median, lowest, highest) over the rounds of ``result["frame_time"]`` of ``region``'s
     equal-error speed-up with their times: brute force's seconds at the samples it needs to
-    reach multi-scale's error (read off its error-vs-spp curve, which holds no timing) over
-    multi-scale's seconds at its spp, each from the line through the round's two renders
-    (:func:`~mscloth.evaluation.speedup.time_at`)."""
+    reach multi-scale's error (read off its error-vs-spp curve, which holds no timing),
+    linear between the round's renders around that count
+    (:func:`~mscloth.evaluation.speedup.time_at`), over multi-scale's seconds at its spp."""
     from mscloth.evaluation.speedup import time_at
 
     r, t = result[region], result["frame_time"]
-    spps = sorted(t["multiscale"])
-
-    def seconds(method, spp, k):
-        return time_at(spp, spps, [t[method][n][k] for n in spps])
-
-    speedups = [seconds("bruteforce", r["spp_bruteforce_equal_error"], k) / seconds("multiscale", r["spp_multiscale"], k)
-                for k in range(len(t["multiscale"][spps[0]]))]
+    bf = t["bruteforce"]
+    ms = t["multiscale"][r["spp_multiscale"]]
+    speedups = [time_at(r["spp_bruteforce_equal_error"], list(bf), [bf[n][k] for n in bf]) / ms[k]
+                for k in range(len(ms))]
     return float(np.median(speedups)), min(speedups), max(speedups)
 
 
@@ -606,13 +616,13 @@ def _compare_lines(compare_rows, budget_rows, res, budget) -> list[str]:
         "",
         "Each method's curve is timed on its own, one after the other, and this shared machine's",
         "speed drifts by tens of percent within minutes. The next column times both methods in",
-        f"{FRAME_TIME_ROUNDS} interleaved rounds instead, each round rendering the whole frame at "
-        f"{FRAME_SPPS[0]} and {FRAME_SPPS[1]} spp",
-        "with both (after compilation): a render's time is a fixed cost plus a cost per sample,",
-        "the line through the round's two renders. Speed-up: brute force's time at the samples",
-        "it needs to reach multi-scale's error (read off its error-vs-spp curve, which holds no",
-        "timing) over multi-scale's at its spp; the median over the rounds and their range.",
-        f"Then the rounds' time ratio at {FRAME_SPPS[0]} spp, multi-scale / brute force. Compare code by these columns.",
+        f"{FRAME_TIME_ROUNDS} interleaved rounds instead, each round rendering the whole frame (after",
+        "compilation) with multi-scale at its spp and brute force at 16, 32, 64, ... spp up to its",
+        "curve's last count. Speed-up: brute force's time at the samples it needs to reach",
+        "multi-scale's error (read off its error-vs-spp curve, which holds no timing; its time",
+        "linear between the round's renders around that count) over multi-scale's; the median",
+        "over the rounds and their range. Then the rounds' time ratio at 16 spp, multi-scale /",
+        "brute force. Compare code by these two columns.",
         "",
         "The last two columns split the speed-up into its factors: brute force at multi-scale's",
         "spp (error per sample; time per sample), and brute force at 256 spp (the second target).",

@@ -107,15 +107,23 @@ def test_equal_error_time_is_exact_on_power_laws_and_flags_extrapolation():
     assert closest_in_time([0.01, 0.1, 1.0], 0.2) == 1 and closest_in_time([0.01, 0.1, 1.0], 0.5) == 2
 
 
-def test_time_at_is_the_line_through_two_renders():
-    """A render's fixed cost plus its cost per sample, through two timed renders; timing
-    noise that makes the second render the faster one costs no sample anything."""
+def test_time_at_is_linear_between_the_renders_around_the_count():
+    """A render's fixed cost plus its cost per sample: linear between the two timed renders
+    around the count, on the line through the nearest two beyond them; timing noise that
+    makes a render the faster one costs no sample anything."""
     assert time_at(16, (16, 64), (0.2, 0.68)) == pytest.approx(0.2)
     assert time_at(256, (16, 64), (0.2, 0.68)) == pytest.approx(0.04 + 0.01 * 256)
     assert time_at(4, (64, 16), (0.68, 0.2)) == pytest.approx(0.04 + 0.01 * 4)
     assert time_at(1000, (16, 64), (0.3, 0.29)) == pytest.approx(0.3)
-    with pytest.raises(ValueError, match="two different sample counts"):
-        time_at(8, (16, 16), (0.2, 0.3))
+    # Three renders, the cost per sample higher between the last two: each stretch its own.
+    counts, seconds = (16, 35, 64), (0.2, 0.39, 0.97)
+    assert time_at(20, counts, seconds) == pytest.approx(0.2 + 0.01 * 4)
+    assert time_at(50, counts, seconds) == pytest.approx(0.39 + 0.02 * 15)
+    assert time_at(100, counts, seconds) == pytest.approx(0.97 + 0.02 * 36)
+    assert time_at(8, counts, seconds) == pytest.approx(0.2 - 0.01 * 8)
+    for bad_counts, bad_seconds in (((16, 16), (0.2, 0.3)), ((16,), (0.2,)), ((16, 32), (0.2,))):
+        with pytest.raises(ValueError, match="two or more different sample counts"):
+            time_at(8, bad_counts, bad_seconds)
 
 
 def _synthetic_points(times, errors_per_region, spps):

@@ -138,19 +138,23 @@ def interleaved_rounds(renders: dict, rounds: int) -> dict:
 def interleaved_renders(name: str, width: int, height: int, spps=(NOISE_SPP,), rounds: int = 3,
                         crop=None) -> dict:
     """Seconds of each render of scene ``name`` with its sun and sky (the film's ``crop``
-    alone if given), multi-scale and brute force at each of ``spps``, after a render of each
-    that compiles, in :func:`interleaved_rounds`: {method: {spp: [seconds, one per round]}}."""
+    alone if given), multi-scale and brute force at each of ``spps`` (or a {method: counts}
+    dictionary), after a render of each that compiles, in :func:`interleaved_rounds`:
+    {method: {samples taken: [seconds, one per round]}} (a stratified sampler takes some
+    counts up: 32 -> 35)."""
     setup_mitsuba()
-    scenes = {m: lit_scene(name, width, height, m == "multiscale", crop=crop) for m in ("multiscale", "bruteforce")}
+    methods = ("multiscale", "bruteforce")
+    counts = spps if isinstance(spps, dict) else {m: spps for m in methods}
+    scenes = {m: lit_scene(name, width, height, m == "multiscale", crop=crop) for m in methods}
     renders = {}
-    for spp in spps:
-        for m, scene in scenes.items():
-            timed_render(scene, spp, 1)  # compile
-            renders[m, spp] = lambda r, scene=scene, spp=spp: timed_render(scene, spp, 100 + r).seconds
+    for m, scene in scenes.items():
+        for spp in counts[m]:
+            taken = timed_render(scene, spp, 1).spp  # compiles
+            renders[m, taken] = lambda r, scene=scene, spp=spp: timed_render(scene, spp, 100 + r).seconds
     seconds = interleaved_rounds(renders, rounds)
     del scenes, renders
     gc.collect()
-    return {m: {spp: seconds[m, spp] for spp in spps} for m in ("multiscale", "bruteforce")}
+    return {m: {taken: values for (method, taken), values in seconds.items() if method == m} for m in methods}
 
 
 def interleaved_time(name: str, width: int, height: int, spp: int = NOISE_SPP, rounds: int = 3,

@@ -78,12 +78,17 @@ def closest_in_time(seconds, target: float) -> int:
 
 
 def time_at(spp: float, spps, seconds) -> float:
-    """A render's seconds at ``spp`` samples per pixel, on the line through two measured
-    renders of the same frame, ``spps[i]`` spp in ``seconds[i]``: a fixed cost per render
-    (tracing the kernel, reading the image back) and a cost per sample. A negative slope
-    (timing noise between two close counts) counts as none."""
-    (n0, n1), (t0, t1) = spps, seconds
-    if n0 == n1:
-        raise ValueError(f"need two different sample counts, got {n0} twice")
-    per_sample = max((t1 - t0) / (n1 - n0), 0.0)
-    return float(t0 + per_sample * (spp - n0))
+    """A render's seconds at ``spp`` samples per pixel from renders of the same frame at
+    ``spps`` (two or more counts) taking ``seconds``: a fixed cost per render (tracing the
+    kernel, reading the image back) and a cost per sample, linear between the two measured
+    counts around ``spp``, and beyond the measured ones on the line through the nearest two.
+    A negative slope (timing noise between two close counts) counts as none."""
+    n = np.asarray(spps, dtype=np.float64)
+    t = np.asarray(seconds, dtype=np.float64)
+    order = np.argsort(n, kind="stable")
+    if n.size < 2 or n.size != t.size or np.any(np.diff(n[order]) == 0):
+        raise ValueError(f"need two or more different sample counts with a time each, got {list(spps)}")
+    n, t = n[order], t[order]
+    i = int(np.clip(np.searchsorted(n, spp), 1, n.size - 1))
+    per_sample = max((t[i] - t[i - 1]) / (n[i] - n[i - 1]), 0.0)
+    return float(t[i - 1] + per_sample * (spp - n[i - 1]))
