@@ -633,12 +633,12 @@ def _compare_lines(compare_rows, budget_rows, res, budget) -> list[str]:
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for name, result in compare_rows:
+        ratios = frame_time_ratios(result)
         for g in ("near", "middle", "far"):
             r = result[g]
             at_256 = [p for p in r["curve_bruteforce"] if p["spp"] == 256]
             # Three significant digits: converged regions reach 1e-5 and below.
             fast, low, high = interleaved_speedup(result, g)
-            ratios = frame_time_ratios(result)
             lines.append(f"| {name} | {g} | {r['speedup']:.2f}x | {fast:.2f}x ({low:.2f}-{high:.2f}) | "
                          f"{np.median(ratios):.2f} ({min(ratios):.2f}-{max(ratios):.2f}) | "
                          f"{r['spp_multiscale']} / {r['relmse_multiscale']:.3g} / "

@@ -159,11 +159,14 @@ def interleaved_renders(name: str, width: int, height: int, spps=(NOISE_SPP,), r
 
 def interleaved_time(name: str, width: int, height: int, spp: int = NOISE_SPP, rounds: int = 3,
                      crop=None) -> dict:
-    """Seconds per spp of multi-scale and brute force (:func:`interleaved_renders` at
-    ``spp``): {"multiscale", "bruteforce": medians over the rounds, "ratio": the median of
-    the rounds' ratios multi-scale / brute force, "ratios": each round's}."""
-    seconds = {m: np.asarray(t[spp]) / spp for m, t in
-               interleaved_renders(name, width, height, (spp,), rounds, crop).items()}
+    """Seconds per sample per pixel (per sample taken) of multi-scale and brute force
+    (:func:`interleaved_renders` at ``spp``): {"multiscale", "bruteforce": medians over the
+    rounds, "ratio": the median of the rounds' ratios multi-scale / brute force, "ratios":
+    each round's}."""
+    seconds = {}
+    for m, by_count in interleaved_renders(name, width, height, (spp,), rounds, crop).items():
+        (taken, values), = by_count.items()  # a stratified sampler may take more than spp
+        seconds[m] = np.asarray(values) / taken
     ratios = [float(a / b) for a, b in zip(seconds["multiscale"], seconds["bruteforce"])]
     return {"multiscale": float(np.median(seconds["multiscale"])), "bruteforce": float(np.median(seconds["bruteforce"])),
             "ratio": float(np.median(ratios)), "ratios": ratios}

@@ -676,8 +676,8 @@ def load_tables(cache_dir, key: str, params: dict, shape) -> MultiscaleTables:
 
 
 #: One table build at a time in a process. A build spreads its directions over every core
-#: (:func:`map_ordered`); Mitsuba's parallel loader building two cloths' tables at once on 2
-#: cores took 2 s for each where one alone took 0.6 s (performance log L42). Builds hold no
+#: (:func:`map_ordered`), so two at once (Mitsuba's parallel loader constructing two cloths)
+#: each took about three times as long as one alone (performance log L42). Builds hold no
 #: Dr.Jit call, so a loader thread waiting here never holds up a kernel.
 _BUILD_LOCK = threading.Lock()
 
@@ -694,7 +694,8 @@ def load_or_build(maps, roughness, cache_dir=None, **kw) -> MultiscaleTables:
     to :func:`build_tables`.
     ``build_warning``: a warning about how the tables are built (e.g. the ``why`` of
     :func:`choose_direction_rank`), given only when they are built, not on every load of
-    the cached tables.
+    the cached tables. Threads build one at a time (``_BUILD_LOCK``); one that waited for
+    tables another thread built meanwhile loads them.
     """
     build_kw = dict(kw)
     build_warning = build_kw.pop("build_warning", "")
