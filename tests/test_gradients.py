@@ -245,13 +245,14 @@ def test_a_roughness_the_tables_cannot_take_is_a_clear_error():
 def test_changed_shading_parameters_are_checked_and_rebuild_the_samplers():
     bsdf = mi.load_dict({"type": "cloth", "multiscale": False, "visibility": False})
     params = mi.traverse(bsdf)
-    sampler = bsdf.fibre.samplers.sheen
+    sampler, diffuse = bsdf.fibre.samplers.sheen, bsdf.fibre.samplers.diffuse
     params["sheen_thickness"] = 0.7
     params.update()
-    # The table a scene with sheen_thickness 0.7 has (shared: the same one).
-    assert bsdf.fibre.samplers.sheen is not sampler
-    assert bsdf.fibre.samplers.sheen is mi.load_dict({"type": "cloth", "multiscale": False, "visibility": False,
-                                               "sheen_thickness": 0.7}).fibre.samplers.sheen
+    # The tables a scene with sheen_thickness 0.7 has (shared: the same ones).
+    assert bsdf.fibre.samplers.sheen is not sampler and bsdf.fibre.samplers.diffuse is not diffuse
+    other = mi.load_dict({"type": "cloth", "multiscale": False, "visibility": False, "sheen_thickness": 0.7})
+    assert bsdf.fibre.samplers.sheen is other.fibre.samplers.sheen
+    assert bsdf.fibre.samplers.diffuse is other.fibre.samplers.diffuse
     # uv_scale_v was derived from uv_scale (and the square tile): it still is.
     params["uv_scale"] = 3.0
     params.update()

@@ -14,6 +14,7 @@ from mscloth.errors import ParameterError
 from mscloth.maps.woven import woven_maps
 from mscloth.patterns.weaves import plain, twill
 from mscloth.precompute import tables as tables_mod
+from mscloth.precompute import visibility as vis_mod
 from mscloth.precompute._march import escape_mask
 from mscloth.precompute._util import texel_pitch
 from mscloth.precompute.direction_bins import (bilinear_bins, bin_centres, direction_to_bin,
@@ -285,6 +286,19 @@ def test_flat_field_is_all_visible():
         assert v.shape == (16, 20, n * n) and v.dtype == np.uint8
         assert np.all(v == 255)
         assert np.all(visibility_table(np.zeros((16, 20)), n, back=True) == 255)
+
+
+def test_visibility_is_the_same_on_any_number_of_threads():
+    """Small fields march on one thread by default (THREADED_TEXELS); the directions come
+    back in bin order whatever the threads, so the tables (and their cache entries) do not
+    depend on the machine."""
+    rng = np.random.default_rng(3)
+    h = rng.random((24, 20)) * 0.2
+    assert h.size < vis_mod.THREADED_TEXELS
+    one = visibility_table(h, 4, fast=True, workers=1)
+    for workers in (None, 3):
+        np.testing.assert_array_equal(visibility_table(h, 4, fast=True, workers=workers), one)
+    assert 0 < np.count_nonzero(one == 0) < one.size  # shadows and light, so order matters
 
 
 def _tower_field(n=32, height_texels=8.0):

@@ -97,7 +97,7 @@ class LobeSamplers:
         sheen_sampler = sheen.FoldedSheenSampler(sheen_roughness)
         with dr.suspend_grad():
             # Diffuse lobes leave through the fuzz: sampled with its transmittance.
-            diffuse = sheen.FuzzCosineSampler(alpha_s, thickness_s)
+            diffuse = sheen.FuzzCosineSampler.shared(alpha_s, thickness_s)
             if dr.is_jit_v(mi.Float) and thickness_s > 0.0:
                 sheen_sampler = sheen.TabulatedSheenSampler.shared(alpha_s, thickness_s)
         return LobeSamplers(sheen=sheen_sampler, diffuse=diffuse)

@@ -216,6 +216,21 @@ class FuzzCosineSampler:
     directions; ``pdf(w)`` is the density of w or of its mirror image below (callers pick
     the side)."""
 
+    # Samplers in use, by (variant, alpha_s, T_s, cells): weak, so one goes with its last BSDF.
+    _shared = weakref.WeakValueDictionary()
+
+    @classmethod
+    def shared(cls, alpha_s, thickness_s, cells: int = 256):
+        """One sampler per fuzz, as :meth:`TabulatedSheenSampler.shared`: BSDFs with the same
+        fuzz skip the kernel that measures its transmittance, and with it a wait on which
+        Dr.Jit's thread pool may hand a loading thread another cloth's whole load
+        (performance log L37)."""
+        key = (mi.variant(), float(alpha_s), float(thickness_s), int(cells))
+        sampler = cls._shared.get(key)
+        if sampler is None:
+            sampler = cls._shared[key] = cls(alpha_s, thickness_s, cells)
+        return sampler
+
     def __init__(self, alpha_s, thickness_s, cells: int = 256):
         mu = (np.arange(cells) + 0.5) / cells
         sin = np.sqrt(1.0 - mu * mu)
