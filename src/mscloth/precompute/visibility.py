@@ -26,8 +26,7 @@ __all__ = ["visibility_table", "cluster_visibility"]
 
 #: Fields of fewer texels march their directions on one thread unless told otherwise: a
 #: step's NumPy calls on them are too short for two threads to gain from releasing the GIL,
-#: and handing it over cost more (160^2: 0.31 s one thread, 0.68 s two; 256^2 even; 1024^2
-#: 1.5x faster on two; performance log L43).
+#: and handing it over costs more than it saves (measured: performance log L43).
 THREADED_TEXELS = 256 * 256
 
 
