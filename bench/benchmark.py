@@ -341,6 +341,12 @@ def frame_time_ratios(result: dict) -> list[float]:
     return [a / b for a, b in zip(t["multiscale"][spp], t["bruteforce"][spp])]
 
 
+def frame_time_ratio(result: dict) -> float:
+    """The median of :func:`frame_time_ratios`: every region's time per sample over brute
+    force's."""
+    return float(np.median(frame_time_ratios(result)))
+
+
 def interleaved_speedup(result: dict, region: str) -> tuple[float, float, float]:
     """(median, lowest, highest) over the rounds of ``result["frame_time"]`` of ``region``'s
     equal-error speed-up with their times: brute force's seconds at the samples it needs to
@@ -425,7 +431,7 @@ def _summary_lines(compare_rows, budget_rows) -> list[str]:
                 b = budget[g]
                 bias = f"{next(iter(b['bias'].values())):.2g}"
                 noise = f"{b['noise']['multiscale']['both']:.3g} / {b['noise']['bruteforce']['both']:.3g}"
-                only = f"{noise_only_speedup(b['noise'], float(np.median(frame_time_ratios(result)))):.2f}x"
+                only = f"{noise_only_speedup(b['noise'], frame_time_ratio(result)):.2f}x"
             else:
                 bias = noise = only = "not measured"
             own = own_only = "not measured"
@@ -447,7 +453,7 @@ def _budget_lines(budget_rows, compare_rows, res=COMPARE_RES) -> list[str]:
     for name, budget in budget_rows:
         for g in ("near", "middle", "far"):
             r = speedups[name][g]
-            cells.append((name, g, budget[g], r, float(np.median(frame_time_ratios(speedups[name])))))
+            cells.append((name, g, budget[g], r, frame_time_ratio(speedups[name])))
     lines = [
         "",
         f"## Why: noise per sample and bias (`mscloth.evaluation.error_budget`, {res[0]}x{res[1]})",

@@ -113,11 +113,10 @@ def region_figures(points_ms, points_bf, spp_ms_chosen, floor) -> tuple[dict, in
     bf = points_bf[bf_index]
     for g in REGIONS:
         target = ms["relmse"][g]
-        t_equal, extrapolated = equal_error_time(bf_times, [max(p["relmse"][g], 1e-30) for p in points_bf],
-                                                 max(target, 1e-30))
+        bf_errors = [max(p["relmse"][g], 1e-30) for p in points_bf]
+        t_equal, extrapolated = equal_error_time(bf_times, bf_errors, max(target, 1e-30))
         # spp brute force needs for that error, from its error-vs-spp curve: no timing in it
-        spp_equal, _ = equal_error_time([p["spp"] for p in points_bf],
-                                        [max(p["relmse"][g], 1e-30) for p in points_bf], max(target, 1e-30))
+        spp_equal, _ = equal_error_time([p["spp"] for p in points_bf], bf_errors, max(target, 1e-30))
         same = min(points_bf, key=lambda p: (abs(math.log(p["spp"] / ms["spp"])), p["spp"]))
         out[g] = {
             "speedup": t_equal / ms["seconds"],

@@ -85,6 +85,15 @@ class FoldedSheenSampler:
         return pdf_sheen(wi, wo, self.alpha_s)
 
 
+def _one_per_key(cache, key, make):
+    """``cache[key]``, made by ``make()`` the first time (the per-fuzz tables: read-only, so
+    BSDFs with the same fuzz share one)."""
+    value = cache.get(key)
+    if value is None:
+        value = cache[key] = make()
+    return value
+
+
 class TabulatedSheenSampler:
     """Samples the sheen lobe in proportion to a table of f_sheen |cos o| (JIT variants).
 
@@ -154,11 +163,8 @@ class TabulatedSheenSampler:
     def shared(cls, alpha_s, thickness_s):
         """:meth:`build` at the default sizes, one table per (variant, alpha_s, T_s): the
         tables are read-only, so BSDFs with the same fuzz share one."""
-        key = (mi.variant(), float(alpha_s), float(thickness_s))
-        sampler = cls._shared.get(key)
-        if sampler is None:
-            sampler = cls._shared[key] = cls.build(alpha_s, thickness_s)
-        return sampler
+        return _one_per_key(cls._shared, (mi.variant(), float(alpha_s), float(thickness_s)),
+                            lambda: cls.build(alpha_s, thickness_s))
 
     def _band(self, wi):
         band = dr.floor(dr.sqrt(dr.maximum(wi.z, 0.0)) * self.n_mu)
@@ -225,11 +231,8 @@ class FuzzCosineSampler:
         fuzz skip the kernel that measures its transmittance, and with it a wait on which
         Dr.Jit's thread pool may hand a loading thread another cloth's whole load
         (performance log L37)."""
-        key = (mi.variant(), float(alpha_s), float(thickness_s), int(cells))
-        sampler = cls._shared.get(key)
-        if sampler is None:
-            sampler = cls._shared[key] = cls(alpha_s, thickness_s, cells)
-        return sampler
+        return _one_per_key(cls._shared, (mi.variant(), float(alpha_s), float(thickness_s), int(cells)),
+                            lambda: cls(alpha_s, thickness_s, cells))
 
     def __init__(self, alpha_s, thickness_s, cells: int = 256):
         mu = (np.arange(cells) + 0.5) / cells
