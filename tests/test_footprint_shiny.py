@@ -160,3 +160,59 @@ def test_footprint_eval_variance_of_shiny_cloth_stays_below_a_fibre_level_sample
             _, ms_err, _ = validation.footprint_expectation(bsdf, [0.3, 0.55], half, N_TEXELS, wi, wo, n=n)
             _, bf_err = validation.brute_force(params, [0.3, 0.55], half, N_TEXELS, wi, wo, n=n)
             assert ms_err ** 2 <= 0.2 * bf_err ** 2, (half, pair, (ms_err / bf_err) ** 2)
+
+
+#: Turned, sheared pixel footprints (edges (a, 0) and (shear a, a) texels turned by
+#: ``rotation``) whose slices fill less than SPLIT_BELOW_FIT of their bounding boxes.
+TURNED = [(10.0, 4.0, 0.9), (20.0, 6.0, 0.35)]
+
+
+@pytest.mark.parametrize("visibility", [False, True])
+@pytest.mark.parametrize("a,shear,rotation", TURNED)
+@pytest.mark.parametrize("pair", ["near-specular", "grazing-across"])
+def test_probe_parts_match_brute_force_over_their_boxes(visibility, a, shear, rotation, pair):
+    """A turned slice of shiny cloth is shaded as the boxes of its parts: the SAT means
+    summed over them and the residual texels spread over them by area. The estimate is then
+    the fibre-level mean over those boxes, up to float32 tables (``TABLES``): what the
+    estimator reads and what it samples must cover the same texels, with the same weight."""
+    params = dict(SATIN, roughness=0.1, visibility=visibility)
+    bsdf = mi.load_dict(params)
+    wi, wo = PAIRS[pair]
+    si = validation.sheared_interaction(40000, [0.3, 0.55], a, shear, N_TEXELS, wi, rotation=rotation)
+    ms, ms_err, boxes = validation.probe_expectation(bsdf, si, wo)
+    parts = boxes[:, 2] > boxes[:, 0]  # (boxes, lanes): non-empty
+    assert boxes.shape[0] == 2 and parts[1].mean() > 0.9, parts.mean(axis=1)
+    bf, bf_err = validation.probe_brute_force(params, boxes, N_TEXELS, wi, wo)
+    tolerance = 5.0 * np.hypot(ms_err, bf_err) + TABLES * abs(bf)
+    assert abs(ms - bf) <= tolerance, (pair, ms, bf, tolerance)
+
+
+#: float32 SATs' rounding, relative (the probes' own region, no shape approximation).
+TABLES = 0.005
+
+
+def test_only_turned_slices_of_shiny_cloth_are_cut_into_parts():
+    """Shiny fibres: a turned slice (filling under SPLIT_BELOW_FIT of its bounding box) is
+    shaded as two boxes along the footprint's slicing edge, of half its area each and
+    centred on its halves; an axis-aligned one stays one box (exact already). Rough fibres
+    never split (no bias to gain: denim's is not the probes', docs/performance-log.md L44)."""
+    wi = [0.2, 0.1, 0.97]
+    for roughness, rotation, split in ((0.1, 0.9, True), (0.1, 0.0, False), (0.4, 0.9, False)):
+        bsdf = mi.load_dict(dict(SATIN, roughness=roughness))
+        si = validation.sheared_interaction(16, [0.3, 0.55], 10.0, 4.0 if rotation else 0.0, N_TEXELS, wi,
+                                            rotation=rotation)
+        estimator = bsdf.estimator
+        fp = estimator.footprint(si, bsdf.fibre.frame(si, True), mi.Float(0.0), mi.Float((np.arange(16) + 0.5) / 16))
+        boxes = np.array([[np.broadcast_to(np.asarray(c, dtype=float), 16) for c in b] for b in fp.boxes])
+        whole = np.array([np.broadcast_to(np.asarray(c, dtype=float), 16) for c in fp.box])
+        assert np.all(np.broadcast_to(np.asarray(fp.split), 16) == split), (roughness, rotation)
+        if not split:
+            np.testing.assert_allclose(boxes[0], whole)
+            assert np.all(boxes[1:, 2] <= boxes[1:, 0])  # the other parts empty
+            continue
+        area = lambda b: (b[2] - b[0]) * (b[3] - b[1])  # noqa: E731
+        np.testing.assert_allclose(area(boxes[0]) + area(boxes[1]), area(whole), rtol=1e-4)
+        # The parts' centres: either side of the slice's centre, symmetric about it.
+        centre = lambda b: 0.5 * (b[:2] + b[2:])  # noqa: E731
+        np.testing.assert_allclose(0.5 * (centre(boxes[0]) + centre(boxes[1])), centre(whole), atol=1e-3)
+        assert np.all(np.hypot(*(centre(boxes[0]) - centre(boxes[1]))) > 1.0)

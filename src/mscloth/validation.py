@@ -50,6 +50,49 @@ def footprint_expectation(bsdf, uv, half_texels, tile_texels, wi, wo, n=20000, s
     return float(v.mean()), float(v.std() / np.sqrt(n)), bool(np.array(st.fp.use)[0])
 
 
+def probe_expectation(bsdf, si, wo, seed=1):
+    """(mean, standard error) of the red channel of the footprint eval over random residual
+    texels, SAT corner rounding and probe choice, one per lane of ``si``, with the
+    footprint shaded whole; and the probe boxes each lane shaded
+    (:meth:`probe_brute_force` takes them): the lanes' rounded boxes, an array
+    (boxes, 4, n) of x0, y0, x1, y1 (empty boxes where a probe has fewer parts)."""
+    n = dr.width(si)
+    enabled = enabled_lobes(non_delta_context())
+    estimator = bsdf.estimator
+    fr = bsdf.fibre.frame(si, True)
+    rng = np.random.default_rng(seed)
+    xi = mi.Point2f(rng.random(n), rng.random(n))
+    xi_round = mi.Point2f(rng.random(n), rng.random(n))
+    fp = estimator.footprint(si, fr, mi.Float(0.0), mi.Float(rng.random(n)))
+    st = estimator.state(si, fr, enabled, xi, xi_round, fp=fp)
+    v = np.array(estimator.eval(fr, st, fr.mirror(mi.Vector3f(_unit(wo))), enabled))[0]
+    boxes, _ = estimator.rounded_box(fp, xi_round)
+    boxes = np.array([[np.broadcast_to(np.asarray(c, dtype=float), n) for c in b] for b in boxes])
+    return float(v.mean()), float(v.std() / np.sqrt(n)), boxes
+
+
+def probe_brute_force(params: dict, boxes, tile_texels: int, wi, wo, seed=2):
+    """(mean, standard error) of the fibre-level BSDF over the probe boxes of
+    :func:`probe_expectation`, one point per lane: in one of its boxes picked by area, then
+    uniform in it. Its expectation is what the footprint estimate's should be, its SAT means
+    and residual texels being over the same boxes (exact up to float32 tables)."""
+    point = mi.load_dict(dict(params, multiscale=False))
+    rng = np.random.default_rng(seed)
+    x0, y0, x1, y1 = boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3]  # (boxes, n)
+    areas = np.maximum(x1 - x0, 0.0) * np.maximum(y1 - y0, 0.0)
+    n = boxes.shape[2]
+    cdf = np.cumsum(areas, axis=0) / areas.sum(axis=0)
+    pick = np.minimum((rng.random(n)[None, :] >= cdf).sum(axis=0), len(boxes) - 1)
+    lanes = np.arange(n)
+    px = x0[pick, lanes] + rng.random(n) * (x1 - x0)[pick, lanes]
+    py = y0[pick, lanes] + rng.random(n) * (y1 - y0)[pick, lanes]
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.uv = mi.Point2f(px / tile_texels, py / tile_texels)
+    si.wi = mi.Vector3f(_unit(wi))
+    v = np.array(point.eval(non_delta_context(), si, mi.Vector3f(_unit(wo))))[0]
+    return float(v.mean()), float(v.std() / np.sqrt(n))
+
+
 def brute_force(params: dict, uv, half_texels, tile_texels, wi, wo, n=200000, seed=2):
     """(mean, standard error) of the fibre-level BSDF over the footprint's area."""
     point = mi.load_dict(dict(params, multiscale=False))

@@ -10,7 +10,7 @@ import numpy as np
 from ..jit_arrays import Extent, flat_array, flat_word_array, gather, gather_block, gather_word, gather_words
 from ..precompute.direction_bins import bin_centres
 from ..scattering import sggx
-from .sat_queries import ResidualSATs, hemisphere_bins
+from .sat_queries import RectUnion, ResidualSATs, hemisphere_bins
 
 
 class FootprintData:
@@ -87,6 +87,8 @@ class FootprintData:
         or for the rank-K table its K coefficient channels weighted by the bins' mixed
         basis row (four basis reads, one SAT read). ``cluster``: over that visibility
         cluster's texels only (the per-cluster tables)."""
+        if isinstance(q, RectUnion):  # one branch around all of a part's reads
+            return q.sum_over(lambda part: [self.d_integral(part, bins, weights, cluster)])[0]
         sats = self.d_sat if cluster is None else self.d_sat_cluster
         offset = 0 if cluster is None else cluster * self.d_sat.channels
         if not self.d_rank:

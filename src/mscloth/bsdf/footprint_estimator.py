@@ -22,7 +22,7 @@ from .fibre_bsdf import FibreBSDF, edges_in_texels
 from ..lanes import logical_not, pick
 from .lobe_mixture import lobe_weights
 from .lobes import DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN, SPECULAR_REFLECTION, SPECULAR_TRANSMISSION
-from .sat_queries import RectQuery, hemisphere_bins, round_box
+from .sat_queries import RectQuery, RectUnion, hemisphere_bins, round_box
 from ..pixel_filter import quadratic_bspline_quantile
 from .shading_state import Texel, ViewFrame
 
@@ -33,7 +33,7 @@ class Footprint:
 
     #: Whether to shade the footprint whole (else fibre level at a point in it).
     use: mi.Bool
-    #: The probe: (x0, y0, x1, y1), the box shaded whole.
+    #: The probe: (x0, y0, x1, y1), the box of the slice's own area and centre.
     box: tuple
     #: (ax, ay, bx, by): the parallelogram's edges (zero where not finite).
     edges: tuple
@@ -46,6 +46,11 @@ class Footprint:
     #: ``point_known``; None where no pixel offset is known.
     point_xi: mi.Point2f | None = None
     point_known: mi.Bool | None = None
+    #: The boxes shaded whole, their SAT means summed (:meth:`FootprintEstimator.footprint`):
+    #: ``box`` alone, or where ``split`` the boxes of the slice's parts (the other
+    #: entries then empty boxes (cx, cy, cx, cy)).
+    boxes: list | None = None
+    split: mi.Bool | bool = False
 
 
 @dataclass
@@ -54,8 +59,8 @@ class FootprintState:
     eval, pdf and sample (:meth:`FootprintEstimator.state`)."""
 
     fp: Footprint
-    #: The SAT query of the rounded box, and the inverse of its area.
-    q: RectQuery
+    #: The SAT query of the rounded boxes, and the inverse of their area.
+    q: RectQuery | RectUnion
     inv_area: mi.Float
     #: Yarn coverage and mean yarn colour over the rounded box.
     yarn_mean: mi.Float | None = None
@@ -173,6 +178,19 @@ class FootprintEstimator:
     #: texels' positions depend on the rounded box, a bias (performance log L24).
     STRATIFY = True
 
+    #: Each probe (slice) shaded as SUB_PROBES boxes, its parts cut along the edge the
+    #: footprint's slices cut, by the fibres' roughness: (below this roughness, parts),
+    #: first match; else 1; only where the slice fills less than SPLIT_BELOW_FIT of its
+    #: bounding box (turned slices, which one box fits worst). Two parts, shiny cloth:
+    #: squared bias 3.7e-5 / 3.1e-5 -> 2.3e-5 / 8e-6 (satin-plane middle / far), 4.9e-5 /
+    #: 1.0e-4 -> 2.9e-5 / 6.8e-5 (satin) for a few % more time per sample; cut along the
+    #: slice's own long edge instead, satin gained nothing; four parts raised the noise
+    #: far away (docs/performance-log.md L44, L45).
+    SUB_PROBES_BY_ROUGHNESS = ((0.15, 2),)
+    #: The part count for every roughness instead (experiments), or None.
+    SUB_PROBES = None
+    SPLIT_BELOW_FIT = 0.7
+
     #: Sum the residual texels' terms in a symbolic loop (:meth:`eval_pdf`); False: one
     #: traced copy per texel (experiments; where gradients flow, always).
     LOOP_TEXELS = True
@@ -180,7 +198,8 @@ class FootprintEstimator:
     #: The tuning constants above (a cached calibration, measured with them, keys on them).
     TUNING = ("POINT_TEXELS", "FOOTPRINT_TEXELS", "MAX_PROBES", "CELLS", "CELLS_BELOW", "CELLS_BELOW_BY_ROUGHNESS",
               "DEFENSIVE_COSINE", "DEFENSIVE_MIN_SIDE",
-              "CONSISTENT_VISIBILITY_CV", "RESIDUAL_GRIDS", "RESIDUAL_GRID", "STRATIFY")
+              "CONSISTENT_VISIBILITY_CV", "RESIDUAL_GRIDS", "RESIDUAL_GRID", "STRATIFY",
+              "SUB_PROBES_BY_ROUGHNESS", "SUB_PROBES", "SPLIT_BELOW_FIT")
 
     def __init__(self, fibre: FibreBSDF, roughness: float):
         self.fibre = fibre
@@ -316,28 +335,53 @@ class FootprintEstimator:
         cx = fr.x + dr.select(finite, offset * lx + offset_s * sx, 0.0)
         cy = fr.y + dr.select(finite, offset * ly + offset_s * sy, 0.0)
         sx, sy = sx * dr.rcp(m), sy * dr.rcp(m)
-        # The probe: the box of the slice's own area and centre, its sides in the ratio
-        # of the slice's extents (square roots of its covariance's diagonal). Where the
-        # slice's ends are slanted the box cuts into it as far as it reaches beyond,
-        # so the pixel's edges blur over a fraction of a slice instead of the
-        # bounding box's overhang adding texels from outside the pixel: 2-10% of bias
-        # at 12^2 texels sheared (bench/footprint_bias_scan.py, docs/performance-log.md L15).
+        # The probe: the box of the slice's own area and centre (:meth:`_part_box`).
         px, py = lx * dr.rcp(n), ly * dr.rcp(n)
+        rx, ry = self._part_box(px, py, sx, sy, finite)
+        box = (cx - rx, cy - ry, cx + rx, cy + ry)
+        boxes, split = [box], False
+        parts = self.sub_probes()
+        if parts > 1:
+            # A turned slice filling little of its bounding box is shaded as the boxes of
+            # its parts, cut as the footprint is (along edge l): the probes then follow
+            # the region of parts x n slices, at one sample per slice.
+            fit = dr.abs(px * sy - py * sx) * dr.rcp(
+                dr.maximum((dr.abs(px) + dr.abs(sx)) * (dr.abs(py) + dr.abs(sy)), 1e-30))
+            split = finite & (fit < self.SPLIT_BELOW_FIT)
+            prx, pry = self._part_box(px * (1.0 / parts), py * (1.0 / parts), sx, sy, finite)
+            boxes = []
+            for j in range(parts):
+                t = (j + 0.5) / parts - 0.5
+                pcx, pcy = cx + t * px, cy + t * py
+                part = (pcx - prx, pcy - pry, pcx + prx, pcy + pry)
+                whole = box if j == 0 else (cx, cy, cx, cy)
+                boxes.append(tuple(dr.select(split, a, b) for a, b in zip(part, whole)))
+        # The point branch's parallelogram (zero where not finite: the texel at si.uv).
+        edges = tuple(dr.select(finite, e, 0.0) for e in (ax, ay, bx, by))
+        return Footprint(use=use, box=box, edges=edges, within=within,
+                         point_xi=point_xi, point_known=known, boxes=boxes, split=split)
+
+    @staticmethod
+    def _part_box(px, py, sx, sy, finite):
+        """(rx, ry): the half sides of the box of the parallelogram (edges p, s)'s own area
+        and centre, its sides in the ratio of the parallelogram's extents (square roots of
+        its covariance's diagonal), at least a texel wide. Where the ends are slanted the
+        box cuts into it as far as it reaches beyond, so the pixel's edges blur over a
+        fraction of a slice instead of the bounding box's overhang adding texels from
+        outside the pixel: 2-10% of bias at 12^2 texels sheared
+        (bench/footprint_bias_scan.py, docs/performance-log.md L15)."""
         var_x = px * px + sx * sx
         var_y = py * py + sy * sy
-        slice_area = dr.abs(px * sy - py * sx)
+        area = dr.abs(px * sy - py * sx)
         aspect = dr.sqrt(dr.sqrt(var_x * dr.rcp(dr.maximum(var_y, 1e-30))))
-        area_ok = (slice_area > 1e-6) & (var_x > 0.0) & (var_y > 0.0)
-        rx_fit = 0.5 * dr.sqrt(slice_area) * aspect
-        ry_fit = 0.25 * slice_area * dr.rcp(dr.maximum(rx_fit, 1e-30))
+        area_ok = (area > 1e-6) & (var_x > 0.0) & (var_y > 0.0)
+        rx_fit = 0.5 * dr.sqrt(area) * aspect
+        ry_fit = 0.25 * area * dr.rcp(dr.maximum(rx_fit, 1e-30))
         rx = dr.select(area_ok, rx_fit, 0.5 * (dr.abs(px) + dr.abs(sx)))
         ry = dr.select(area_ok, ry_fit, 0.5 * (dr.abs(py) + dr.abs(sy)))
         rx = dr.select(finite, dr.maximum(rx, 0.5), 0.5)
         ry = dr.select(finite, dr.maximum(ry, 0.5), 0.5)
-        # The point branch's parallelogram (zero where not finite: the texel at si.uv).
-        edges = tuple(dr.select(finite, e, 0.0) for e in (ax, ay, bx, by))
-        return Footprint(use=use, box=(cx - rx, cy - ry, cx + rx, cy + ry), edges=edges, within=within,
-                         point_xi=point_xi, point_known=known)
+        return rx, ry
 
     def point_in_footprint(self, fr: ViewFrame, fp: Footprint, xi):
         """Texel coordinates of the point ``xi`` (uniform in [0,1)^2) of the footprint's
@@ -347,10 +391,13 @@ class FootprintEstimator:
                 fr.y + (xi.x - 0.5) * ay + (xi.y - 0.5) * by)
 
     def rounded_box(self, fp: Footprint, xi_round):
-        """The footprint's probe with its corners rounded stochastically to whole texels
-        by ``xi_round`` (the box that is shaded), and its SAT query."""
-        box = round_box(*fp.box, xi_round.x, xi_round.y)
-        return box, self.fibre.footprint_data.scalar_sats.query_on_grid(*box)
+        """The footprint's probe boxes with their corners rounded stochastically to whole
+        texels by ``xi_round`` (the boxes that are shaded), and their SAT query (a
+        :class:`.sat_queries.RectUnion` where the probe has parts)."""
+        sats = self.fibre.footprint_data.scalar_sats
+        boxes = [round_box(*b, xi_round.x, xi_round.y) for b in (fp.boxes or [fp.box])]
+        queries = [sats.query_on_grid(*b) for b in boxes]
+        return boxes, queries[0] if len(queries) == 1 else RectUnion(queries, fp.split)
 
     # ------------------------------------------------------------------
     # The footprint's state: SAT means, residual texels, sampling mixture
@@ -389,7 +436,7 @@ class FootprintEstimator:
         # the yarn coverage of a gap-free footprint read 0.54-1.62, so the gap lobe let
         # light through where there are no gaps (its negative values cannot be sampled)
         # and lobe probabilities reached -39 and +40 (docs/performance-log.md L10).
-        box, q = self.rounded_box(fp, xi_round)
+        boxes, q = self.rounded_box(fp, xi_round)
         inv_area = dr.rcp(q.area)
 
         # Every channel at once (gap, moments, cluster histogram, albedo): packets of four
@@ -420,7 +467,7 @@ class FootprintEstimator:
 
         # The texels of the control-variate residual, one uniform in each cell of a grid
         # over the footprint (stratified: 1/n of the variance of one texel or less).
-        st.texels = texels = self._stratified_texels(fr, box, xi)
+        st.texels = texels = self._stratified_texels(fr, boxes, xi)
         if fibre.use_visibility:
             st.cvis_i = cvis_i = fd.cluster_visibilities(fr.wi, fr.flip)
             for t_ in texels:
@@ -471,6 +518,10 @@ class FootprintEstimator:
         """G: the residual texels are G x G (RESIDUAL_GRIDS, or RESIDUAL_GRID if set)."""
         return int(self._by_roughness(self.RESIDUAL_GRID, self.RESIDUAL_GRIDS, 2))
 
+    def sub_probes(self) -> int:
+        """Parts per probe (SUB_PROBES_BY_ROUGHNESS, or SUB_PROBES if set)."""
+        return int(self._by_roughness(self.SUB_PROBES, self.SUB_PROBES_BY_ROUGHNESS, 1))
+
     def cells_below(self) -> float:
         """Slices under which a footprint gets CELLS cells across (CELLS_BELOW_BY_ROUGHNESS,
         or CELLS_BELOW if set)."""
@@ -486,18 +537,32 @@ class FootprintEstimator:
         n = g * g
         return tuple((float(k % g), float(k // g), ((k * 7) % n) / n, ((k * 5) % n + 0.5) / n) for k in range(n))
 
-    def _stratified_texels(self, fr: ViewFrame, box, xi) -> list[Texel]:
-        """The residual texels, one uniform in each cell of the rounded box the SAT
-        means cover (from ``xi``)."""
+    def _stratified_texels(self, fr: ViewFrame, boxes, xi) -> list[Texel]:
+        """The residual texels, one uniform in each cell of a grid over the rounded boxes
+        the SAT means cover (from ``xi``); the grid's first axis runs through the boxes
+        one after the other, each its share of the total area, so that the texels are
+        uniform over them as the means weigh them."""
         fibre = self.fibre
-        x0, y0, x1, y1 = box
         g = self.residual_grid()
+        areas = [(x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in boxes]
+        total = sum(areas[1:], areas[0])
         texels = []
         for qx, qy, cx, cy in self._strata(g):
             sx = xi.x + cx
             sy = xi.y + cy
             u = (qx + sx - dr.floor(sx)) * (1.0 / g)  # in [0, 1)
             v = (qy + sy - dr.floor(sy)) * (1.0 / g)
+            x0, y0, x1, y1 = boxes[0]
+            if len(boxes) > 1:  # the box the area fraction u falls in, u rescaled within it
+                t = u * total
+                start = areas[0]
+                u = t * dr.rcp(dr.maximum(areas[0], 1e-30))
+                for b, a in zip(boxes[1:], areas[1:]):
+                    take = (t >= start) & (a > 0.0)
+                    u = dr.select(take, (t - start) * dr.rcp(dr.maximum(a, 1e-30)), u)
+                    x0, y0, x1, y1 = (dr.select(take, p, q) for p, q in zip(b, (x0, y0, x1, y1)))
+                    start = start + a  # not +=: that would change areas[0] in place
+                u = dr.clip(u, 0.0, 0.99999994)
             texels.append(fibre.texel(fr, x0 + u * (x1 - x0), y0 + v * (y1 - y0)))
         return texels
 
@@ -587,8 +652,10 @@ class FootprintEstimator:
                         # tiles the base is exact for that one, whose residual varies far
                         # less (a 384^2 footprint's variance ratio 0.06 against 0.41)
                         # (bench/footprint_bias_scan.py, docs/performance-log.md L15).
-                        x0, y0, x1, y1 = st.fp.box
-                        whole_tiles = (x1 - x0 >= fibre.tile.width.f) & (y1 - y0 >= fibre.tile.height.f)
+                        whole_tiles = True
+                        for x0, y0, x1, y1 in st.fp.boxes or [st.fp.box]:  # empty parts aside
+                            whole_tiles &= ((x1 - x0 >= fibre.tile.width.f) & (y1 - y0 >= fibre.tile.height.f)
+                                            | (x1 <= x0))
                         w_bar = (whole_tiles, w_bar_d)
                 else:
                     base = d_yarn * texel_mean

@@ -49,6 +49,41 @@ class RectQuery:
                                label="sat_edges"))
 
 
+class RectUnion:
+    """Several texel rectangles read as one: every integral is the sum of the parts'
+    (a texel under two parts counts twice, as the residual texels spread over the parts
+    by area count it). Lanes where ``used`` is False have their first part alone (the
+    others empty), and packets without such a lane skip the other parts' reads."""
+
+    def __init__(self, parts: list[RectQuery], used):
+        self.parts = parts
+        self.used = used
+        self.area = sum((p.area for p in parts[1:]), parts[0].area)
+
+    def sum_over(self, read):
+        """The sum over the parts of ``read(part)`` (a list of Floats)."""
+        total = list(read(self.parts[0]))
+        if len(self.parts) < 2:
+            return total
+
+        def rest():
+            out = None
+            for part in self.parts[1:]:
+                values = list(read(part))
+                out = values if out is None else [a + b for a, b in zip(out, values)]
+            return tuple(out)
+
+        if dr.is_jit_v(mi.Float):
+            # Widened to the reads' lanes: from constant footprints (tests) ``used`` is one
+            # value, and Dr.Jit 1.5.0's if_stmt then returns one-value outputs.
+            cond = self.used & dr.full(mi.Bool, True, dr.width(total))
+            more = dr.if_stmt(args=(), cond=cond, true_fn=rest,
+                              false_fn=lambda: tuple(mi.Float(0.0) for _ in total), label="sat_parts")
+        else:
+            more = rest() if self.used else [0.0] * len(total)
+        return [a + b for a, b in zip(total, more)]
+
+
 class _Corner:
     """Where the cumulative integral S(x, y) of the periodically repeated tile reads:
     qx whole tiles along x, qy along y, and the remainder (rx, ry) inside the tile."""
@@ -141,6 +176,8 @@ class ResidualSATs:
     def integrals(self, q: RectQuery, first: int, n: int):
         """:meth:`integral` of the ``n`` channels from ``first`` on (Python ints), read in
         packets where the layout allows (a rounded query, channels in whole fours)."""
+        if isinstance(q, RectUnion):
+            return q.sum_over(lambda part: self.integrals(part, first, n))
         C = self.channels
         if not (q.on_grid and n % 4 == 0 and first % 4 == 0 and C % 4 == 0):
             return [self.integral(q, first + j) for j in range(n)]
@@ -171,7 +208,10 @@ class ResidualSATs:
 
     def integral(self, q: RectQuery, channel):
         """Integral of the original values of ``channel`` (int or per-lane UInt32) over the
-        rectangle of query ``q`` (made by any table of this tile size)."""
+        rectangle of query ``q`` (made by any table of this tile size; or a
+        :class:`RectUnion` of such)."""
+        if isinstance(q, RectUnion):
+            return q.sum_over(lambda part: [self.integral(part, channel)])[0]
         C = self.channels
         row_stride = self.row_stride
         channel = mi.UInt32(channel)
