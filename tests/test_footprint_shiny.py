@@ -203,8 +203,8 @@ def test_only_turned_slices_of_shiny_cloth_are_cut_into_parts():
                                             rotation=rotation)
         estimator = bsdf.estimator
         fp = estimator.footprint(si, bsdf.fibre.frame(si, True), mi.Float(0.0), mi.Float((np.arange(16) + 0.5) / 16))
-        boxes = np.array([[np.broadcast_to(np.asarray(c, dtype=float), 16) for c in b] for b in fp.boxes])
-        whole = np.array([np.broadcast_to(np.asarray(c, dtype=float), 16) for c in fp.box])
+        boxes = validation.lane_boxes(fp.boxes, 16)
+        whole = validation.lane_boxes([fp.box], 16)[0]
         assert np.all(np.broadcast_to(np.asarray(fp.split), 16) == split), (roughness, rotation)
         if not split:
             np.testing.assert_allclose(boxes[0], whole)

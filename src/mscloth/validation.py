@@ -66,9 +66,13 @@ def probe_expectation(bsdf, si, wo, seed=1):
     fp = estimator.footprint(si, fr, mi.Float(0.0), mi.Float(rng.random(n)))
     st = estimator.state(si, fr, enabled, xi, xi_round, fp=fp)
     v = np.array(estimator.eval(fr, st, fr.mirror(mi.Vector3f(_unit(wo))), enabled))[0]
-    boxes, _ = estimator.rounded_box(fp, xi_round)
-    boxes = np.array([[np.broadcast_to(np.asarray(c, dtype=float), n) for c in b] for b in boxes])
-    return float(v.mean()), float(v.std() / np.sqrt(n)), boxes
+    return float(v.mean()), float(v.std() / np.sqrt(n)), lane_boxes(estimator.rounded_box(fp, xi_round)[0], n)
+
+
+def lane_boxes(boxes, n: int) -> np.ndarray:
+    """Boxes of a footprint ((x0, y0, x1, y1) per box, each a Float of one or ``n`` lanes)
+    as an array (boxes, 4, n)."""
+    return np.array([[np.broadcast_to(np.asarray(c, dtype=float), n) for c in b] for b in boxes])
 
 
 def probe_brute_force(params: dict, boxes, tile_texels: int, wi, wo, seed=2):

@@ -37,6 +37,11 @@ class Footprint:
     box: tuple
     #: (ax, ay, bx, by): the parallelogram's edges (zero where not finite).
     edges: tuple
+    #: The boxes shaded whole, their SAT means summed: ``box`` alone, or where ``split``
+    #: the boxes of the slice's parts (:meth:`FootprintEstimator.footprint`; the other
+    #: entries then empty boxes (cx, cy, cx, cy)).
+    boxes: list
+    split: mi.Bool | bool
     #: The camera sample's place in its probe's cell, uniform in [0,1)^2 (None, or
     #: negative, where the sample's pixel offset is not known; None under a tent pixel
     #: filter, which spends it on the probe's offset).
@@ -46,11 +51,6 @@ class Footprint:
     #: ``point_known``; None where no pixel offset is known.
     point_xi: mi.Point2f | None = None
     point_known: mi.Bool | None = None
-    #: The boxes shaded whole, their SAT means summed (:meth:`FootprintEstimator.footprint`):
-    #: ``box`` alone, or where ``split`` the boxes of the slice's parts (the other
-    #: entries then empty boxes (cx, cy, cx, cy)).
-    boxes: list | None = None
-    split: mi.Bool | bool = False
 
 
 @dataclass
@@ -358,8 +358,8 @@ class FootprintEstimator:
                 boxes.append(tuple(dr.select(split, a, b) for a, b in zip(part, whole)))
         # The point branch's parallelogram (zero where not finite: the texel at si.uv).
         edges = tuple(dr.select(finite, e, 0.0) for e in (ax, ay, bx, by))
-        return Footprint(use=use, box=box, edges=edges, within=within,
-                         point_xi=point_xi, point_known=known, boxes=boxes, split=split)
+        return Footprint(use=use, box=box, edges=edges, boxes=boxes, split=split, within=within,
+                         point_xi=point_xi, point_known=known)
 
     @staticmethod
     def _part_box(px, py, sx, sy, finite):
@@ -395,7 +395,7 @@ class FootprintEstimator:
         texels by ``xi_round`` (the boxes that are shaded), and their SAT query (a
         :class:`.sat_queries.RectUnion` where the probe has parts)."""
         sats = self.fibre.footprint_data.scalar_sats
-        boxes = [round_box(*b, xi_round.x, xi_round.y) for b in (fp.boxes or [fp.box])]
+        boxes = [round_box(*b, xi_round.x, xi_round.y) for b in fp.boxes]
         queries = [sats.query_on_grid(*b) for b in boxes]
         return boxes, queries[0] if len(queries) == 1 else RectUnion(queries, fp.split)
 
@@ -653,7 +653,7 @@ class FootprintEstimator:
                         # less (a 384^2 footprint's variance ratio 0.06 against 0.41)
                         # (bench/footprint_bias_scan.py, docs/performance-log.md L15).
                         whole_tiles = True
-                        for x0, y0, x1, y1 in st.fp.boxes or [st.fp.box]:  # empty parts aside
+                        for x0, y0, x1, y1 in st.fp.boxes:  # empty parts aside
                             whole_tiles &= ((x1 - x0 >= fibre.tile.width.f) & (y1 - y0 >= fibre.tile.height.f)
                                             | (x1 <= x0))
                         w_bar = (whole_tiles, w_bar_d)
