@@ -50,12 +50,13 @@ def footprint_expectation(bsdf, uv, half_texels, tile_texels, wi, wo, n=20000, s
     return float(v.mean()), float(v.std() / np.sqrt(n)), bool(np.array(st.fp.use)[0])
 
 
-def probe_expectation(bsdf, si, wo, seed=1):
+def probe_expectation(bsdf, si, wo, seed=1, grid=None):
     """(mean, standard error) of the red channel of the footprint eval over random residual
     texels, SAT corner rounding and probe choice, one per lane of ``si``, with the
     footprint shaded whole; and the probe boxes each lane shaded
     (:meth:`probe_brute_force` takes them): the lanes' rounded boxes, an array
-    (boxes, 4, n) of x0, y0, x1, y1 (empty boxes where a probe has fewer parts)."""
+    (boxes, 4, n) of x0, y0, x1, y1 (empty boxes where a probe has fewer parts).
+    ``grid``: G of the G x G residual texels (default: the estimator's own)."""
     n = dr.width(si)
     enabled = enabled_lobes(non_delta_context())
     estimator = bsdf.estimator
@@ -64,7 +65,7 @@ def probe_expectation(bsdf, si, wo, seed=1):
     xi = mi.Point2f(rng.random(n), rng.random(n))
     xi_round = mi.Point2f(rng.random(n), rng.random(n))
     fp = estimator.footprint(si, fr, mi.Float(0.0), mi.Float(rng.random(n)))
-    st = estimator.state(si, fr, enabled, xi, xi_round, fp=fp)
+    st = estimator.state(si, fr, enabled, xi, xi_round, fp=fp, grid=grid)
     v = np.array(estimator.eval(fr, st, fr.mirror(mi.Vector3f(_unit(wo))), enabled))[0]
     return float(v.mean()), float(v.std() / np.sqrt(n)), lane_boxes(estimator.rounded_box(fp, xi_round)[0], n)
 

@@ -159,13 +159,23 @@ class ClothShading:
         with the shading hash ``hashed`` it came from."""
         estimator = self.estimator
         xi, xi_round, _ = hashed
-        st = estimator.state(si, fr, enabled, xi, xi_round, fp=fp)
 
-        def eval_pdf(wo, unrolled):
-            return estimator.eval_pdf(fr, st, wo, enabled, unrolled)
+        def shade(grid=None):
+            st = estimator.state(si, fr, enabled, xi, xi_round, fp=fp, grid=grid)
 
-        sampled = estimator.sample(fr, st, enabled, *samples, active) if samples is not None else None
-        return self._evaluate(si, fr, eval_pdf, wos, sampled)
+            def eval_pdf(wo, unrolled):
+                return estimator.eval_pdf(fr, st, wo, enabled, unrolled)
+
+            sampled = estimator.sample(fr, st, enabled, *samples, active) if samples is not None else None
+            return self._evaluate(si, fr, eval_pdf, wos, sampled)
+
+        large = estimator.large_probe_grid()
+        if large is None:
+            return shade()
+        # Large probes take a finer residual grid; a packet of small ones skips its texels.
+        texels, grid = large
+        return branch(fp.probe_texels() >= texels, (si, wos, samples), true_fn=lambda: shade(grid),
+                      false_fn=shade, label="cloth_large_probe")
 
     def _evaluate(self, si, fr: ViewFrame, eval_pdf, wos, sampled):
         """(values, pdfs, sample record or ()) of a branch: ``eval_pdf`` at the directions

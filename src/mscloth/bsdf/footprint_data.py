@@ -163,7 +163,16 @@ class FootprintData:
         """V(p, w) of the texel whose :meth:`texel_visibility` is ``texel``, for an
         upper-hemisphere direction ``w`` of the front (back=False) or mirrored back
         (back=True) height field, bilinear over direction bins."""
-        bins, weights = hemisphere_bins(w, self.dv)
+        return self.visibility_in_bins(texel, self.visibility_bins(w), back)
+
+    def visibility_bins(self, w):
+        """The four visibility direction bins around ``w`` and their weights: computed once
+        per direction where several texels are looked up (:meth:`visibility_in_bins`)."""
+        return hemisphere_bins(w, self.dv)
+
+    def visibility_in_bins(self, texel, bins_weights, back):
+        """:meth:`visibility_of` for the direction whose :meth:`visibility_bins` are given."""
+        bins, weights = bins_weights
         v = mi.Float(0.0)
         if self.packed_visibility:
             # The side's bits as one word (64 bits at 8x8 bins), chosen once per direction:
