@@ -220,7 +220,7 @@ def test_only_turned_slices_of_shiny_cloth_are_cut_into_parts():
 
 @pytest.mark.parametrize("pair", ["near-specular", "grazing-across"])
 def test_large_probes_stay_unbiased_with_the_finer_grid(pair):
-    """The finer residual grid of large probes (4 x 4 texels over a turned footprint cut into
+    """The finer residual grid of large probes (5 x 5 texels over a turned footprint cut into
     two boxes, visibility on) still estimates the fibre-level mean over the boxes shaded."""
     params = dict(SATIN, roughness=0.1)
     bsdf = mi.load_dict(params)
@@ -238,7 +238,7 @@ def test_large_probes_stay_unbiased_with_the_finer_grid(pair):
 def test_only_large_probes_of_shiny_cloth_take_the_finer_grid(monkeypatch):
     """Shaded through the BSDF (random shading hashes, as a render's samples): a probe of
     shiny cloth over the threshold takes the finer grid, whose estimate varies less (noise
-    falls faster than 1/G^2 there: satin-plane far 0.00058 -> 0.00031 per sample, L46); a
+    falls faster than 1/G^2 there: satin-plane far 0.00058 -> 0.00024 per sample, L46); a
     probe under it gives the very values it gave without the rule; rough cloth has none."""
     from mscloth.bsdf.footprint_estimator import FootprintEstimator
 
@@ -257,6 +257,6 @@ def test_only_large_probes_of_shiny_cloth_take_the_finer_grid(monkeypatch):
     monkeypatch.setattr(FootprintEstimator, "LARGE_PROBE_GRIDS", ())
     _, err_coarse = validation.shading_expectation(bsdf, large, wo)
     small_coarse = np.array(bsdf.eval(ctx, small, mi.Vector3f(wo) / np.linalg.norm(wo)))
-    # Each variance is known to ~1% at 20000 lanes; the finer grid's is 0.58 of the other's.
-    assert (err_fine / err_coarse) ** 2 < 0.8, (err_fine / err_coarse) ** 2
+    # Each variance is known to ~1% at 20000 lanes; the finer grid's is 0.33 of the other's.
+    assert (err_fine / err_coarse) ** 2 < 0.6, (err_fine / err_coarse) ** 2
     np.testing.assert_array_equal(small_fine, small_coarse)
