@@ -17,6 +17,7 @@ import argparse
 import sys
 import time
 
+import drjit as dr
 import numpy as np
 
 from common import set_class_attributes, setup_mitsuba
@@ -25,9 +26,12 @@ from region_terms import parse_variant
 
 def cloth_dict(scene: str) -> dict:
     """The ``cloth`` BSDF dictionary of a built-in scene's first cloth shape."""
+    from mscloth.evaluation.regions import cloth_shape_keys
     from mscloth.scenes.builtin import SCENES
-    for value in SCENES[scene](64, 36).values():
-        if isinstance(value, dict) and isinstance(value.get("bsdf"), dict) and value["bsdf"].get("type") == "cloth":
+    scene_dict = SCENES[scene](64, 36)
+    keys = cloth_shape_keys(scene_dict)
+    for key, value in scene_dict.items():  # the first in the scene's order
+        if key in keys:
             return dict(value["bsdf"])
     raise SystemExit(f"eval_cost.py: scene '{scene}' has no cloth shape")
 
@@ -62,8 +66,6 @@ def lanes(mi, n: int, side: tuple, tile: float, seed: int, spp: int = 16, width:
         v = np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), cos_t])
         return v[:, row] if rows_only else v
 
-    si = mi.SurfaceInteraction3f()
-    import drjit as dr
     si = dr.zeros(mi.SurfaceInteraction3f, n)
     si.uv = mi.Point2f(*(uv % 1.0))
     si.duv_dx = mi.Vector2f(*dx)
@@ -76,7 +78,7 @@ def lanes(mi, n: int, side: tuple, tile: float, seed: int, spp: int = 16, width:
     return si, [sun, sky], mi.Float(rng.random(n)), mi.Point2f(*rng.random((2, n)))
 
 
-def kernel_seconds(dr, run) -> float:
+def kernel_seconds(run) -> float:
     """Seconds the kernels launched by ``run()`` executed (Dr.Jit's kernel history)."""
     dr.kernel_history()  # clear
     run()
@@ -94,7 +96,6 @@ def main(argv=None) -> int:
     parser.add_argument("--rounds", type=int, default=7)
     args = parser.parse_args(argv)
     mi = setup_mitsuba()
-    import drjit as dr
 
     side = tuple(float(v) for v in args.texels.split(","))
     base = cloth_dict(args.scene)
@@ -117,8 +118,8 @@ def main(argv=None) -> int:
     def timing(attrs, bsdf, si, wo, s1, s2):
         saved = set_class_attributes(attrs)
         try:
-            both = kernel_seconds(dr, lambda: dr.eval(bsdf.eval_pdf_sample_n(ctx, si, wo, s1, s2)))
-            ev = kernel_seconds(dr, lambda: dr.eval(bsdf.eval_pdf(ctx, si, wo[0])))
+            both = kernel_seconds(lambda: dr.eval(bsdf.eval_pdf_sample_n(ctx, si, wo, s1, s2)))
+            ev = kernel_seconds(lambda: dr.eval(bsdf.eval_pdf(ctx, si, wo[0])))
         finally:
             set_class_attributes(saved)
         return both, ev

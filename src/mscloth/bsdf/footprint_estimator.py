@@ -54,8 +54,14 @@ class Footprint:
 
     def probe_texels(self):
         """Texels in the probe: its boxes' areas summed (empty parts add nothing)."""
-        areas = [(x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in self.boxes]
-        return sum(areas[1:], areas[0])
+        return box_areas(self.boxes)[1]
+
+
+def box_areas(boxes):
+    """Each box's (x0, y0, x1, y1) area, and their total (new values: a Dr.Jit ``+=`` would
+    change the first area in place)."""
+    areas = [(x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in boxes]
+    return areas, sum(areas[1:], areas[0])
 
 
 @dataclass
@@ -490,10 +496,11 @@ class FootprintEstimator:
         st.texels = texels = self._stratified_texels(fr, boxes, xi, grid or self.residual_grid())
         if fibre.use_visibility:
             st.cvis_i = cvis_i = fd.cluster_visibilities(fr.wi, fr.flip)
+            bins_i = fd.visibility_bins(fr.wi)  # once, not once per texel
             for t_ in texels:
                 t_.cluster = fd.cluster_of(t_.ix, t_.iy)
                 t_.vis = fd.texel_visibility(t_.ix, t_.iy)
-                t_.v_i = fd.visibility_of(t_.vis, fr.wi, fr.flip)
+                t_.v_i = fd.visibility_in_bins(t_.vis, bins_i, fr.flip)
                 t_.cvis_i = pick(cvis_i, t_.cluster)
             # The footprint's share of each cluster's yarn (diffuse lobes, specular base).
             st.fractions = [mean(fd.CLUSTERS + c) for c in range(fd.clusters)]
@@ -542,12 +549,10 @@ class FootprintEstimator:
         """(texels, G): probes of at least that many texels take G x G residual texels
         (LARGE_PROBE_GRIDS, or LARGE_PROBE_TEXELS and LARGE_PROBE_GRID if set); None: the
         same grid for every probe."""
-        if self.LARGE_PROBE_TEXELS is not None:
-            return float(self.LARGE_PROBE_TEXELS), int(self.LARGE_PROBE_GRID)
-        for below, texels, g in self.LARGE_PROBE_GRIDS:
-            if self.roughness < below:
-                return float(texels), int(g)
-        return None
+        fixed = None if self.LARGE_PROBE_TEXELS is None else (self.LARGE_PROBE_TEXELS, self.LARGE_PROBE_GRID)
+        rule = tuple((below, (texels, g)) for below, texels, g in self.LARGE_PROBE_GRIDS)
+        found = self._by_roughness(fixed, rule, None)
+        return None if found is None else (float(found[0]), int(found[1]))
 
     def sub_probes(self) -> int:
         """Parts per probe (SUB_PROBES_BY_ROUGHNESS, or SUB_PROBES if set)."""
@@ -574,8 +579,7 @@ class FootprintEstimator:
         one after the other, each its share of the total area, so that the texels are
         uniform over them as the means weigh them."""
         fibre = self.fibre
-        areas = [(x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in boxes]
-        total = sum(areas[1:], areas[0])
+        areas, total = box_areas(boxes)
         texels = []
         for qx, qy, cx, cy in self._strata(g):
             sx = xi.x + cx
@@ -762,11 +766,10 @@ class FootprintEstimator:
         instead of one per texel (3x3 on shiny cloth: performance log L40); ``unrolled``
         (where gradients flow) one copy each. Both add in texel order."""
         n = len(texels)
-        per_texel = [[None if e is None else e[j] for e in extras] for j in range(n)]
         if unrolled or n < 2 or not dr.is_jit_v(mi.Float):
             sums = None
-            for t_, values in zip(texels, per_texel):
-                terms_t = terms(t_, *values)
+            for j, t_ in enumerate(texels):
+                terms_t = terms(t_, *(None if e is None else e[j] for e in extras))
                 sums = terms_t if sums is None else tuple(a + b for a, b in zip(sums, terms_t))
             return sums
         first = texels[0]

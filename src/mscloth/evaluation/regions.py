@@ -65,7 +65,8 @@ def region_masks(depth: np.ndarray, cloth: np.ndarray, min_fraction: float = 0.0
 
 
 
-def _cloth_shape_keys(scene: dict) -> set[str]:
+def cloth_shape_keys(scene: dict) -> set[str]:
+    """The keys of a scene dictionary's shapes whose BSDF is a ``cloth``."""
     return {key for key, node in scene.items()
             if isinstance(node, dict) and isinstance(node.get("bsdf"), dict) and node["bsdf"].get("type") == "cloth"}
 
@@ -95,7 +96,7 @@ def depth_and_cloth(name: str, width: int, height: int) -> tuple[np.ndarray, np.
     from ..loading import load_dict
 
     scene = scene_dict(name, width, height, multiscale=True)
-    cloth_keys = _cloth_shape_keys(scene)
+    cloth_keys = cloth_shape_keys(scene)
     # Shapes only need identities here, so no cloth tables are built: a plain diffuse BSDF
     # each, all different (Mitsuba merges meshes that share an identical BSDF into one shape).
     for i, node in enumerate(scene.values()):
