@@ -293,6 +293,11 @@ def bench_ccv_bias() -> list[tuple]:
 #: scene on 2 cores. (At 160x90 the multi-scale BSDF's fixed cost per render call, mostly
 #: tracing the kernel in Python, ~25 ms, was half of its time at 16 spp.)
 COMPARE_RES, COMPARE_BUDGET = (320, 180), 60.0
+#: The brute-force reference's spp, for the comparison and the error budget alike (one cached
+#: reference). At 1024 its own noise was 60% of satin-plane's far relMSE of multi-scale and
+#: brute force's curve stopped at 256 spp (a quarter of it), short of the 450 spp it needs
+#: there; 4096 costs 1-3 minutes per scene once (performance log L47).
+COMPARE_REFERENCE_SPP = 4096
 
 
 def bench_compare(scenes=None, res=COMPARE_RES, budget: float = COMPARE_BUDGET,
@@ -306,7 +311,7 @@ def bench_compare(scenes=None, res=COMPARE_RES, budget: float = COMPARE_BUDGET,
     rows = []
     for name in (SCENES if scenes is None else scenes):
         out = Path(out_root) / f"compare-{name}"
-        result = run_compare(name, *res, budget=budget, out_dir=out, quiet=True)
+        result = run_compare(name, *res, budget=budget, reference_spp=COMPARE_REFERENCE_SPP, out_dir=out, quiet=True)
         result["frame_time"] = interleaved_renders(name, *res, frame_counts(result), FRAME_TIME_ROUNDS)
         rows.append((name, result))
         print("  " + name + ": " + ", ".join(f"{g} {result[g]['speedup']:.2f}x, at interleaved time "
@@ -347,19 +352,20 @@ def frame_time_ratio(result: dict) -> float:
     return float(np.median(frame_time_ratios(result)))
 
 
-def interleaved_speedup(result: dict, region: str) -> tuple[float, float, float]:
+def interleaved_speedup(result: dict, region: str, uncorrected: bool = False) -> tuple[float, float, float]:
     """(median, lowest, highest) over the rounds of ``result["frame_time"]`` of ``region``'s
     equal-error speed-up with their times: brute force's seconds at the samples it needs to
-    reach multi-scale's error (read off its error-vs-spp curve, which holds no timing),
+    reach multi-scale's own error (read off its error-vs-spp curve, which holds no timing),
     linear between the round's renders around that count
-    (:func:`~mscloth.evaluation.speedup.time_at`), over multi-scale's seconds at its spp."""
+    (:func:`~mscloth.evaluation.speedup.time_at`), over multi-scale's seconds at its spp.
+    ``uncorrected``: with the errors against the reference as they are, its noise included."""
     from mscloth.evaluation.speedup import time_at
 
     r, t = result[region], result["frame_time"]
     bf = t["bruteforce"]
     ms = t["multiscale"][r["spp_multiscale"]]
-    speedups = [time_at(r["spp_bruteforce_equal_error"], list(bf), [bf[n][k] for n in bf]) / ms[k]
-                for k in range(len(ms))]
+    spp = r["spp_bruteforce_equal_error_uncorrected" if uncorrected else "spp_bruteforce_equal_error"]
+    speedups = [time_at(spp, list(bf), [bf[n][k] for n in bf]) / ms[k] for k in range(len(ms))]
     return float(np.median(speedups)), min(speedups), max(speedups)
 
 
@@ -378,7 +384,7 @@ def bench_error_budget(scenes=BUDGET_SCENES, res=COMPARE_RES, **kw) -> list[tupl
 
     rows = []
     for name in scenes:
-        budget = error_budget(name, *res, quiet=True, **kw)
+        budget = error_budget(name, *res, quiet=True, **{"reference_spp": COMPARE_REFERENCE_SPP, **kw})
         for g, timing in region_time(name, *res, rounds=REGION_TIME_ROUNDS).items():
             budget[g]["time"] = timing
         rows.append((name, budget))
@@ -617,7 +623,7 @@ def _compare_lines(compare_rows, budget_rows, res, budget) -> list[str]:
         f"## Multi-scale vs brute force (`mscloth compare`, {res[0]}x{res[1]}, budget {budget:g} s)",
         "",
         "Equal-error speed-up: time brute force (fibre-level, supersampled) needs to reach the",
-        "multi-scale error at its spp, over multi-scale's time. relMSE against a 1024 spp",
+        f"multi-scale error at its spp, over multi-scale's time. relMSE against a {COMPARE_REFERENCE_SPP} spp",
         "brute-force reference; reports in out/compare-SCENE/report.html.",
         "",
         "Each method's curve is timed on its own, one after the other, and this shared machine's",
@@ -630,13 +636,20 @@ def _compare_lines(compare_rows, budget_rows, res, budget) -> list[str]:
         "over the rounds and their range. Then the rounds' time ratio at 16 spp, multi-scale /",
         "brute force. Compare code by these two columns.",
         "",
+        "The errors are each method's own: relMSE against the reference minus the reference's own",
+        "noise (estimated from its two halves; both methods' relMSE contain it alike). Beyond brute",
+        "force's curve its error is extrapolated with its last stretch's slope or -1, whichever is",
+        "steeper. '>': multi-scale's error is within the reference's noise, a lower bound. The",
+        "uncorrected column keeps the reference's noise in both errors, as before 2026-12-04.",
+        "",
         "The last two columns split the speed-up into its factors: brute force at multi-scale's",
         "spp (error per sample; time per sample), and brute force at 256 spp (the second target).",
         "",
-        "| scene | region | speed-up | speed-up, interleaved time (range) | frame's time / bf, interleaved "
-        "(range) | multi-scale spp / relMSE / s | brute force (equal time) spp / relMSE / s "
+        "| scene | region | speed-up | speed-up, interleaved time (range) | uncorrected, interleaved "
+        "| frame's time / bf, interleaved (range) | multi-scale spp / relMSE / own relMSE / s "
+        "| reference noise relMSE | brute force (equal time) spp / relMSE / s "
         "| brute force, equal spp: relMSE / s | brute force, 256 spp: relMSE |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, result in compare_rows:
         ratios = frame_time_ratios(result)
@@ -645,10 +658,13 @@ def _compare_lines(compare_rows, budget_rows, res, budget) -> list[str]:
             at_256 = [p for p in r["curve_bruteforce"] if p["spp"] == 256]
             # Three significant digits: converged regions reach 1e-5 and below.
             fast, low, high = interleaved_speedup(result, g)
-            lines.append(f"| {name} | {g} | {r['speedup']:.2f}x | {fast:.2f}x ({low:.2f}-{high:.2f}) | "
+            bound = "> " if r["reference_limited"] else ""
+            lines.append(f"| {name} | {g} | {bound}{r['speedup']:.2f}x | {bound}{fast:.2f}x ({low:.2f}-{high:.2f}) | "
+                         f"{interleaved_speedup(result, g, uncorrected=True)[0]:.2f}x | "
                          f"{np.median(ratios):.2f} ({min(ratios):.2f}-{max(ratios):.2f}) | "
-                         f"{r['spp_multiscale']} / {r['relmse_multiscale']:.3g} / "
-                         f"{r['seconds_multiscale']:.2f} | {r['spp_bruteforce']} / {r['relmse_bruteforce']:.3g} / "
+                         f"{r['spp_multiscale']} / {r['relmse_multiscale']:.3g} / {r['relmse_multiscale_own']:.3g} / "
+                         f"{r['seconds_multiscale']:.2f} | {r['relmse_reference']:.3g} | "
+                         f"{r['spp_bruteforce']} / {r['relmse_bruteforce']:.3g} / "
                          f"{r['seconds_bruteforce']:.2f} | {r['relmse_bruteforce_equal_spp']:.3g} / "
                          f"{r['seconds_bruteforce_equal_spp']:.2f} | "
                          + (f"{at_256[0]['relmse']:.3g}" if at_256 else "not reached") + " |")

@@ -18,7 +18,7 @@ from mscloth.evaluation import compare, references, speedup
 from mscloth.evaluation.metrics import relmse
 from mscloth.evaluation.references import ReferenceCacheWarning, reference_image, reference_path
 from mscloth.evaluation.regions import REGIONS, region_masks
-from mscloth.evaluation.speedup import closest_in_time, equal_error_time, time_at
+from mscloth.evaluation.speedup import ReferenceNoise, closest_in_time, equal_error_time, time_at
 
 mscloth.register()
 
@@ -97,6 +97,12 @@ def test_equal_error_time_is_exact_on_power_laws_and_flags_extrapolation():
     assert extrapolated and seconds == pytest.approx(6.4, rel=1e-12)
     seconds, extrapolated = equal_error_time(t, 2 * c / t, c / 6.4)  # last point (1.6, 2c/1.6)
     assert extrapolated and seconds == pytest.approx(12.8, rel=1e-12)
+    # never reached on a curve falling faster than 1/t: its last stretch's slope, not -1
+    seconds, extrapolated = equal_error_time(t, c / t ** 2, c / 3.2 ** 2)
+    assert extrapolated and seconds == pytest.approx(3.2, rel=1e-12)
+    # ... but never flatter than -1: a curve levelling off extrapolates with error ~ 1/t
+    seconds, extrapolated = equal_error_time(t, c / t ** 0.5, c / 1.6 ** 0.5 / 4)
+    assert extrapolated and seconds == pytest.approx(6.4, rel=1e-12)
     # already below at the first point: slope -1 backwards
     seconds, extrapolated = equal_error_time(t, c / t, c / 0.05)
     assert extrapolated and seconds == pytest.approx(0.05, rel=1e-12)
@@ -142,8 +148,8 @@ def test_region_figures_give_the_exact_ratio_on_c_over_t_curves():
     ms_err = [{g: 10.0 for g in REGIONS}] * 4 + [{g: c[g] / (0.1 * wanted[g]) for g in REGIONS},
                                                   {g: 1e-9 for g in REGIONS}]
     ms = _synthetic_points(ms_t, ms_err, [1, 2, 4, 8, 16, 32])
-    floor = {g: 0.0 for g in REGIONS}
-    figures, ms_index, bf_index = compare.region_figures(ms, bf, 16, floor)
+    exact = {g: ReferenceNoise(0.0, 0.0) for g in REGIONS}
+    figures, ms_index, bf_index = compare.region_figures(ms, bf, 16, exact)
     assert ms_index == 4 and bf_t[bf_index] == 0.08  # closest to 0.1 s in log time
     for g in REGIONS:
         assert figures[g]["speedup"] == pytest.approx(wanted[g], rel=1e-9)
@@ -151,7 +157,64 @@ def test_region_figures_give_the_exact_ratio_on_c_over_t_curves():
         # the samples brute force needs, read off its error-vs-spp curve (1 spp = 0.01 s)
         assert figures[g]["spp_bruteforce_equal_error"] == pytest.approx(10.0 * wanted[g], rel=1e-9)
         assert figures[g]["extrapolated"] is (0.1 * wanted[g] > bf_t[-1])
+        assert figures[g]["speedup_uncorrected"] == pytest.approx(wanted[g], rel=1e-9)
+        assert not figures[g]["reference_limited"]
     assert figures["far"]["extrapolated"] and not figures["near"]["extrapolated"]
+
+
+def test_region_figures_compare_own_errors_with_the_references_noise_taken_out():
+    """Both methods' relMSE against a noisy reference holds its noise r: brute force's c/spp + r,
+    multi-scale's e + r. The speed-up must be brute force's samples to reach e, not e + r; brute
+    force's points within the reference's resolution leave its curve, and a multi-scale error
+    the reference cannot resolve gives a flagged lower bound."""
+    r = 4e-5
+    spps = [2 ** k for k in range(9)]  # 1 .. 256; 1 spp takes 0.01 s
+    c = {"near": 0.2, "middle": 0.05, "far": 0.02}
+    bf = _synthetic_points([0.01 * n for n in spps], [{g: c[g] / n + r for g in REGIONS} for n in spps], spps)
+    own = {"near": c["near"] / 40, "middle": c["middle"] / 2000, "far": 1e-6}
+    ms = _synthetic_points([0.16], [{g: own[g] + r for g in REGIONS}], [16])
+    noise = {g: ReferenceNoise(r, 1e-6) for g in REGIONS}
+    figures, _, _ = compare.region_figures(ms, bf, 16, noise)
+    # near: inside brute force's curve, 40 spp = 0.4 s
+    assert figures["near"]["spp_bruteforce_equal_error"] == pytest.approx(40, rel=1e-9)
+    assert figures["near"]["speedup"] == pytest.approx(0.4 / 0.16, rel=1e-9)
+    # far above the reference's noise, subtracting it changes little
+    assert figures["near"]["speedup_uncorrected"] == pytest.approx(figures["near"]["speedup"], rel=0.01)
+    # middle: 2000 spp, past brute force's last point (256), extrapolated with its slope -1
+    assert figures["middle"]["extrapolated"] and not figures["middle"]["reference_limited"]
+    assert figures["middle"]["spp_bruteforce_equal_error"] == pytest.approx(2000, rel=1e-9)
+    # uncorrected, the reference's noise makes brute force reach multi-scale's error sooner
+    assert figures["middle"]["speedup_uncorrected"] < 0.5 * figures["middle"]["speedup"]
+    # far: brute force's own error at 256 spp (7.8e-5) is resolved, multi-scale's 1e-6 is not
+    # (3 standard errors = 3e-6): the speed-up is the one to reach 3e-6, a lower bound
+    assert figures["far"]["reference_limited"] and figures["far"]["relmse_multiscale_own"] == pytest.approx(3e-6)
+    assert figures["far"]["spp_bruteforce_equal_error"] == pytest.approx(c["far"] / 3e-6, rel=1e-9)
+    assert [p["relmse_own"] is None for p in figures["far"]["curve_multiscale"]] == [True]
+    assert figures["near"]["curve_bruteforce"][-1]["relmse_own"] == pytest.approx(c["near"] / 256, rel=1e-9)
+    lines = compare.summary_lines({**figures, "regions": {"pixels": {g: 1000 for g in REGIONS}}}, 16, 16)
+    assert lines[3].startswith("far     >") and any(line.startswith("> a lower bound") for line in lines)
+
+
+def test_reference_noise_of_a_region_from_the_per_pixel_estimates():
+    """The subtraction's standard error: sqrt(2) std / sqrt(n) of the per-pixel estimates, which
+    also sets which errors count as resolved; checked against the spread of what it subtracts."""
+    rng = np.random.default_rng(7)
+    variance = rng.exponential(2e-5, (60, 50))  # the reference mean's true relative variance per pixel
+    estimate = variance * rng.chisquare(1, variance.shape)  # (A - B)^2 / 4 of Gaussian halves
+    mask = np.zeros_like(variance, bool)
+    mask[10:40] = True
+    noise = ReferenceNoise.of_region(estimate, mask)
+    values = estimate[mask]
+    assert noise.relmse == pytest.approx(values.mean(), rel=1e-12)
+    assert noise.standard_error == pytest.approx(math.sqrt(2) * values.std(ddof=1) / math.sqrt(values.size), rel=1e-12)
+    assert noise.own_error(noise.relmse + 2 * noise.standard_error) is None
+    assert noise.own_error(noise.relmse + 4 * noise.standard_error) == pytest.approx(4 * noise.standard_error)
+    # over 1500 pixels, the realised noise in an image's relMSE minus another estimate of it
+    v = variance[mask]
+    differences = [(v * (rng.chisquare(1, v.size) - rng.chisquare(1, v.size))).mean() for _ in range(400)]
+    assert np.std(differences) == pytest.approx(noise.standard_error, rel=0.25)
+    with pytest.raises(ValueError, match="empty"):
+        ReferenceNoise.of_region(estimate, np.zeros_like(mask))
 
 
 # ----------------------------------------------------------------------------- reference cache
@@ -205,7 +268,7 @@ def _synthetic_result(w=40, h=24):
     bf_t = [0.01 * 2 ** k for k in range(5)]
     bf = _synthetic_points(bf_t, [{g: 0.01 / t for g in REGIONS} for t in bf_t], [1, 2, 4, 8, 16])
     ms = _synthetic_points([0.05, 0.1], [{g: 0.2 for g in REGIONS}, {g: 0.05 for g in REGIONS}], [1, 2])
-    figures, _, _ = compare.region_figures(ms, bf, 16, {g: 0.001 for g in REGIONS})
+    figures, _, _ = compare.region_figures(ms, bf, 16, {g: ReferenceNoise(0.001, 1e-5) for g in REGIONS})
     result = {"scene": "synthetic", "resolution": [w, h], "reference_spp": 64, "budget_seconds": 1.0,
               "variant": "none", "mscloth_version": mscloth.__version__, "machine": "test", **figures,
               "regions": {"method": info["method"], "distance_thresholds": info["thresholds"],
@@ -275,7 +338,7 @@ def _narrow_result():
           for i, t in enumerate(bf_t)]
     ms = [{"spp": 2 ** i, "seconds": t, "compile_seconds": 0.0, "seed": i, "relmse": {g: e for g in REGIONS},
            "flip": {g: f for g in REGIONS}} for i, (t, e, f) in enumerate(zip(ms_t, (0.05, 0.03), (0.3, 0.25)))]
-    figures, _, _ = compare.region_figures(ms, bf, 2, {g: 0.02 for g in REGIONS})
+    figures, _, _ = compare.region_figures(ms, bf, 2, {g: ReferenceNoise(0.02, 1e-4) for g in REGIONS})
     result.update(figures)
     return result
 

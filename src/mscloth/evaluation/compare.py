@@ -18,6 +18,10 @@ brute force gets the rest and stops at reference spp / 4 (beyond that the refere
 noise dominates). A point is only started when three times twice the previous point's
 time still fits; each curve has at least two points.
 
+Errors. relMSE against the reference contains the reference's own noise, alike for both
+methods; the speed-up compares each method's own error, relMSE minus that noise
+(:class:`.speedup.ReferenceNoise`), and keeps the uncorrected figure beside it.
+
 Regions (:mod:`.regions`), errors (:mod:`.metrics`), the reference (:mod:`.references`), the
 speed-up and when a region is too small for it (:mod:`.speedup`), the report (:mod:`.report`).
 """
@@ -41,7 +45,7 @@ from .metrics import RELMSE_EPS, flip_map, relmse_map
 from .references import reference_image
 from .regions import REGIONS, depth_and_cloth, region_masks
 from .renders import BRUTEFORCE_SEED, MULTISCALE_SEED, scene_dict, timed_render
-from .speedup import MIN_REGION_PIXELS, closest_in_time, equal_error_time, few_pixels_warning
+from .speedup import MIN_REGION_PIXELS, ReferenceNoise, closest_in_time, equal_error_time, few_pixels_warning
 
 # --------------------------------------------------------------------------- curves
 
@@ -98,13 +102,19 @@ def check_evaluation_extra() -> None:
                          "pip install 'mscloth[evaluation]'")
 
 
-def region_figures(points_ms, points_bf, spp_ms_chosen, floor) -> tuple[dict, int, int]:
+def region_figures(points_ms, points_bf, spp_ms_chosen, noise) -> tuple[dict, int, int]:
     """Per region of :data:`.regions.REGIONS`, the equal-error speed-up and what it is made of,
     from the two curves (lists of ``{"spp", "seconds", "relmse": {region: ...}, "flip":
     {region: ...}}`` points, in order of spp): multi-scale's point is its last at or below
-    ``spp_ms_chosen``, brute force's the one closest to it in time; ``floor`` is each
-    region's error of the reference itself. Returns ``(figures, ms_index, bf_index)``: the
-    figures by region and the indices of the two points they compare."""
+    ``spp_ms_chosen``, brute force's the one closest to it in time; ``noise`` is each region's
+    :class:`.speedup.ReferenceNoise`. Returns ``(figures, ms_index, bf_index)``: the figures by
+    region and the indices of the two points they compare.
+
+    The speed-up compares own errors (relMSE minus the reference's noise). Brute-force points
+    whose own error the reference cannot resolve are left out of its curve (the speed-up then
+    extrapolates past the last resolved one); a multi-scale error it cannot resolve counts as
+    the resolution, so its speed-up is a lower bound, flagged ``reference_limited``.
+    ``speedup_uncorrected`` is the same figure on the errors against the reference as they are."""
     out = {}
     ms_index = max(i for i, p in enumerate(points_ms) if p["spp"] <= spp_ms_chosen)
     ms = points_ms[ms_index]
@@ -112,18 +122,33 @@ def region_figures(points_ms, points_bf, spp_ms_chosen, floor) -> tuple[dict, in
     bf_index = closest_in_time(bf_times, ms["seconds"])
     bf = points_bf[bf_index]
     for g in REGIONS:
-        target = ms["relmse"][g]
-        bf_errors = [max(p["relmse"][g], 1e-30) for p in points_bf]
-        t_equal, extrapolated = equal_error_time(bf_times, bf_errors, max(target, 1e-30))
-        # spp brute force needs for that error, from its error-vs-spp curve: no timing in it
-        spp_equal, _ = equal_error_time([p["spp"] for p in points_bf], bf_errors, max(target, 1e-30))
+        ref_noise = noise[g]
+        raw_target = max(ms["relmse"][g], 1e-30)
+        raw_errors = [max(p["relmse"][g], 1e-30) for p in points_bf]
+        t_raw, _ = equal_error_time(bf_times, raw_errors, raw_target)
+        spp_raw, _ = equal_error_time([p["spp"] for p in points_bf], raw_errors, raw_target)
+        own_target = ref_noise.own_error(ms["relmse"][g])
+        resolved = [(p, own) for p in points_bf if (own := ref_noise.own_error(p["relmse"][g])) is not None]
+        if resolved:
+            target = ref_noise.resolution if own_target is None else own_target
+            t_equal, extrapolated = equal_error_time([p["seconds"] for p, _ in resolved],
+                                                     [own for _, own in resolved], target)
+            # spp brute force needs for that error, from its error-vs-spp curve: no timing in it
+            spp_equal, _ = equal_error_time([p["spp"] for p, _ in resolved], [own for _, own in resolved], target)
+        else:  # brute force's first point is already within the reference's noise: nothing to subtract from
+            target, t_equal, spp_equal = raw_target, t_raw, spp_raw
+            extrapolated = equal_error_time(bf_times, raw_errors, raw_target)[1]
         same = min(points_bf, key=lambda p: (abs(math.log(p["spp"] / ms["spp"])), p["spp"]))
         out[g] = {
             "speedup": t_equal / ms["seconds"],
             "extrapolated": bool(extrapolated),
-            "relmse_multiscale": target,
+            "reference_limited": bool(resolved) and own_target is None,
+            "speedup_uncorrected": t_raw / ms["seconds"],
+            "relmse_multiscale": ms["relmse"][g],
+            "relmse_multiscale_own": target,
             "relmse_bruteforce": bf["relmse"][g],
-            "relmse_reference": floor[g],
+            "relmse_reference": ref_noise.relmse,
+            "relmse_reference_standard_error": ref_noise.standard_error,
             "flip_multiscale": ms["flip"][g],
             "flip_bruteforce": bf["flip"][g],
             "spp_multiscale": ms["spp"],
@@ -132,17 +157,23 @@ def region_figures(points_ms, points_bf, spp_ms_chosen, floor) -> tuple[dict, in
             "seconds_bruteforce": bf["seconds"],
             "seconds_bruteforce_equal_error": t_equal,
             "spp_bruteforce_equal_error": spp_equal,
+            "spp_bruteforce_equal_error_uncorrected": spp_raw,
             # diagnostics: brute force at (or nearest to) multi-scale's spp -- error per sample
             # and cost per sample, the two factors of the speed-up
             "spp_bruteforce_equal_spp": same["spp"],
             "relmse_bruteforce_equal_spp": same["relmse"][g],
             "seconds_bruteforce_equal_spp": same["seconds"],
-            "curve_multiscale": [{"spp": p["spp"], "seconds": p["seconds"], "relmse": p["relmse"][g],
-                                  "flip": p["flip"][g]} for p in points_ms],
-            "curve_bruteforce": [{"spp": p["spp"], "seconds": p["seconds"], "relmse": p["relmse"][g],
-                                  "flip": p["flip"][g]} for p in points_bf],
+            "curve_multiscale": _curve(points_ms, g, ref_noise),
+            "curve_bruteforce": _curve(points_bf, g, ref_noise),
         }
     return out, ms_index, bf_index
+
+
+def _curve(points, region: str, ref_noise) -> list[dict]:
+    """One region's convergence curve; ``relmse_own``: the error minus the reference's noise
+    (None where it cannot resolve it)."""
+    return [{"spp": p["spp"], "seconds": p["seconds"], "relmse": p["relmse"][region],
+             "relmse_own": ref_noise.own_error(p["relmse"][region]), "flip": p["flip"][region]} for p in points]
 
 
 def summary_lines(result: dict, spp_multiscale: int, spp_bruteforce: int) -> list[str]:
@@ -154,11 +185,15 @@ def summary_lines(result: dict, spp_multiscale: int, spp_bruteforce: int) -> lis
     warnings_ = {g: few_pixels_warning(result["regions"]["pixels"][g]) for g in REGIONS}
     for g in REGIONS:
         r = result[g]
-        lines.append(f"{g:8s} {r['speedup']:9.2f}x{'*' if r['extrapolated'] else ' '} {r['relmse_multiscale']:10.3g} "
+        bound = ">" if r.get("reference_limited") else " "
+        lines.append(f"{g:8s}{bound}{r['speedup']:9.2f}x{'*' if r['extrapolated'] else ' '} {r['relmse_multiscale']:10.3g} "
                      f"{r['relmse_bruteforce']:10.3g} {r['flip_multiscale']:8.4f} {r['flip_bruteforce']:8.4f}"
                      + ("  !" if warnings_[g] else ""))
     if any(result[g]["extrapolated"] for g in REGIONS):
-        lines.append("* extrapolated with error ~ 1/time beyond brute force's measured curve")
+        lines.append("* extrapolated beyond brute force's measured curve (its last slope, at least error ~ 1/time)")
+    if any(result[g].get("reference_limited") for g in REGIONS):
+        lines.append("> a lower bound: multi-scale's error is within the reference's own noise "
+                     "(render a reference of more samples, --reference-spp)")
     lines += [f"! warning: {g}: {text}" for g, text in warnings_.items() if text]
     return lines
 
@@ -203,8 +238,8 @@ def run_compare(name: str, width: int, height: int, budget: float = 60.0, refere
         + f" of {width * height}")
 
     ref, ref_var, cached = reference_image(name, width, height, reference_spp, quiet=quiet)
-    floor = {g: float((ref_var / (ref.astype(np.float64) ** 2 + RELMSE_EPS)).mean(axis=-1)[masks[g]].mean())
-             for g in REGIONS}
+    ref_noise_map = (ref_var / (ref.astype(np.float64) ** 2 + RELMSE_EPS)).mean(axis=-1)
+    noise = {g: ReferenceNoise.of_region(ref_noise_map, masks[g]) for g in REGIONS}
 
     def evaluate(image):
         rel = relmse_map(image, ref)
@@ -226,7 +261,7 @@ def run_compare(name: str, width: int, height: int, budget: float = 60.0, refere
     del scene
     gc.collect()
 
-    regions, ms_index, bf_index = region_figures(points_ms, points_bf, spp_multiscale, floor)
+    regions, ms_index, bf_index = region_figures(points_ms, points_bf, spp_multiscale, noise)
     result = {
         "scene": name,
         "resolution": [width, height],
@@ -247,8 +282,9 @@ def run_compare(name: str, width: int, height: int, budget: float = 60.0, refere
             "relmse": f"mean over region pixels and RGB of (img-ref)^2/(ref^2+{RELMSE_EPS:g})",
             "flip": "flip_evaluator LDR-FLIP of sRGB-encoded images clipped to [0,1], mean over region pixels",
             "seconds": "wall time of one mi.render at that spp minus Dr.Jit kernel compilation",
-            "speedup": "brute-force seconds to reach multi-scale's relMSE (log-log interpolation of its "
-                       "relMSE-vs-seconds curve; slope -1 extrapolation if outside it) / multi-scale seconds",
+            "speedup": "brute-force seconds to reach multi-scale's own relMSE (relMSE minus the reference's "
+                       "noise) on its own-relMSE-vs-seconds curve (log-log interpolation; beyond it, its last "
+                       "slope or -1, whichever is steeper) / multi-scale seconds",
         },
         "compile_seconds": {"multiscale": sum(p["compile_seconds"] for p in points_ms),
                             "bruteforce": sum(p["compile_seconds"] for p in points_bf)},

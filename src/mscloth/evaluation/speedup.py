@@ -4,15 +4,24 @@ region's speed-up can be trusted.
 For each region: the time brute force needs to reach multi-scale's relMSE at
 its chosen spp, read off brute force's relMSE-vs-seconds curve, interpolated linearly in
 log-log between the two points around the first crossing, divided by multi-scale's
-seconds. When brute force never gets down to that error (or is already below it at its
-first point), the time is extrapolated from its last (first) point with the Monte Carlo
-slope -1 (error ~ 1/time) and flagged ``extrapolated: true``. A region of fewer than
+seconds. When brute force never gets down to that error, the time is extrapolated from its
+last point with its last stretch's slope or the Monte Carlo slope -1 (error ~ 1/time),
+whichever is steeper: brute force's stratified pixel samples often converge faster than
+1/time, and assuming they slow down at once would flatter multi-scale. When brute force is
+already below that error at its first point, slope -1 backwards. Either is flagged
+``extrapolated: true``.
+
+The errors are each method's own: relMSE against the reference minus the reference's own
+noise (:class:`ReferenceNoise`), which every image's relMSE contains alike. Without that
+subtraction a region whose multi-scale error is near the reference's noise measures the
+reference, not the renderer. A region of fewer than
 :data:`MIN_REGION_PIXELS` pixels gets a warning beside its speed-up, on the terminal and in
 the report (:func:`few_pixels_warning`).
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -42,12 +51,54 @@ def few_pixels_warning(pixels: int) -> str | None:
             "render at a larger --res")
 
 
+#: Standard errors by which an error must exceed the reference's noise to count as measured.
+RESOLVED_STANDARD_ERRORS = 3.0
+
+
+@dataclass(frozen=True)
+class ReferenceNoise:
+    """The reference's own noise in one region: the relMSE it adds to every image's relMSE,
+    and the standard error of subtracting it.
+
+    An image independent of the reference has E[(img - ref)^2] = E[(img - truth)^2] + Var(ref):
+    relMSE against the reference is the image's own error plus ``relmse``, the same for both
+    methods. ``relmse`` is estimated per pixel from the reference's two independent halves
+    (:mod:`.metrics`); its region mean and the reference's realised noise each have a standard
+    error of std(per-pixel estimate) / sqrt(pixels), so their difference about sqrt(2) times
+    that: ``standard_error``."""
+
+    relmse: float
+    standard_error: float
+
+    @classmethod
+    def of_region(cls, per_pixel, mask) -> "ReferenceNoise":
+        """From the per-pixel relative variance of the reference's mean and a region's mask."""
+        values = np.asarray(per_pixel, np.float64)[np.asarray(mask, bool)]
+        if values.size == 0:
+            raise ValueError("empty region mask")
+        spread = float(values.std(ddof=1)) if values.size > 1 else float(values[0])
+        return cls(float(values.mean()), math.sqrt(2.0) * spread / math.sqrt(values.size))
+
+    @property
+    def resolution(self) -> float:
+        """The smallest own error told apart from none: :data:`RESOLVED_STANDARD_ERRORS`
+        standard errors (a tiny positive number when the reference is exact)."""
+        return max(RESOLVED_STANDARD_ERRORS * self.standard_error, 1e-30)
+
+    def own_error(self, relmse: float) -> float | None:
+        """An image's own error, ``relmse`` (against the reference) minus the reference's
+        noise, or None when that is within :attr:`resolution` of nothing."""
+        own = relmse - self.relmse
+        return own if own >= self.resolution else None
+
+
 def equal_error_time(seconds, errors, target: float) -> tuple[float, bool]:
     """Seconds a method needs to reach error ``target``, from its (seconds, error) curve.
 
     Linear interpolation in log-log between the points around the first crossing below
-    ``target``; if the curve never gets there (or starts below it), extrapolation from
-    its last (first) point with slope -1 (error ~ 1/time). Returns (seconds, extrapolated).
+    ``target``. If the curve never gets there, extrapolation from its last point with the
+    slope of its last stretch or -1 (error ~ 1/time), whichever is steeper; if it starts
+    below, from its first point with slope -1. Returns (seconds, extrapolated).
     Any cost that grows along the curve will do for ``seconds``: with sample counts it gives
     the samples a method needs to reach ``target``.
     """
@@ -61,7 +112,10 @@ def equal_error_time(seconds, errors, target: float) -> tuple[float, bool]:
     t, e = t[order], e[order]
     below = np.flatnonzero(e <= target)
     if below.size == 0:
-        return float(t[-1] * e[-1] / target), True
+        slope = -1.0
+        if t.size >= 2 and t[-1] > t[-2]:
+            slope = min(slope, math.log(e[-1] / e[-2]) / math.log(t[-1] / t[-2]))
+        return float(t[-1] * (e[-1] / target) ** (-1.0 / slope)), True
     i = int(below[0])
     if i == 0:
         return float(t[0] * e[0] / target), True
