@@ -326,15 +326,18 @@ FRAME_TIME_ROUNDS = 4
 
 def frame_counts(result: dict) -> dict:
     """The sample counts :func:`bench_compare` times in interleaved rounds, from ``compare``'s
-    figures ``result``: multi-scale at its spp; brute force at its curve's counts from that
-    spp up (at least two: the line between them prices any count)."""
+    figures ``result``: multi-scale at its spp; brute force from that spp up to its curve's
+    largest count in steps of 4 (at least two: the line between them prices any count).
+    Steps of 4 from 16 stay powers of two that ``multijitter`` does not round (it makes
+    32 35, 128 132): Mitsuba renders other counts at 1.5-1.7x the time per sample
+    (:func:`mscloth.evaluation.compare.bruteforce_timing`)."""
     r = result["near"]
     spp = r["spp_multiscale"]
     largest = max(p["spp"] for p in r["curve_bruteforce"])
-    counts, n = [spp], 2 * spp
+    counts, n = [spp], 4 * spp
     while n <= largest or len(counts) < 2:
         counts.append(n)
-        n *= 2
+        n *= 4
     return {"multiscale": (spp,), "bruteforce": tuple(counts)}
 
 
@@ -629,7 +632,7 @@ def _compare_lines(compare_rows, budget_rows, res, budget) -> list[str]:
         "Each method's curve is timed on its own, one after the other, and this shared machine's",
         "speed drifts by tens of percent within minutes. The next column times both methods in",
         f"{FRAME_TIME_ROUNDS} interleaved rounds instead, each round rendering the whole frame (after",
-        "compilation) with multi-scale at its spp and brute force at 16, 32, 64, ... spp up to its",
+        "compilation) with multi-scale at its spp and brute force at 16, 64, 256, ... spp up to its",
         "curve's last count. Speed-up: brute force's time at the samples it needs to reach",
         "multi-scale's error (read off its error-vs-spp curve, which holds no timing; its time",
         "linear between the round's renders around that count) over multi-scale's; the median",

@@ -195,6 +195,22 @@ def test_region_figures_compare_own_errors_with_the_references_noise_taken_out()
     assert lines[3].startswith("far     >") and any(line.startswith("> a lower bound") for line in lines)
 
 
+def test_bruteforce_is_priced_by_its_renders_at_powers_of_two():
+    """Mitsuba renders counts other than powers of two (multijitter's 35, 132) at 1.5-1.7x the
+    time per sample: brute force's time at the count it needs comes from its powers of two."""
+    spps = [1, 2, 4, 8, 16, 35, 64, 132, 256]
+    seconds = [0.02 + 0.001 * n * (1.6 if n & (n - 1) else 1.0) for n in spps]
+    bf = _synthetic_points(seconds, [{g: 0.1 / n for g in REGIONS} for n in spps], spps)
+    ms = _synthetic_points([0.05], [{g: 0.1 / 100 for g in REGIONS}], [16])
+    figures, _, _ = compare.region_figures(ms, bf, 16, {g: ReferenceNoise(0.0, 0.0) for g in REGIONS})
+    for g in REGIONS:
+        assert figures[g]["spp_bruteforce_equal_error"] == pytest.approx(100, rel=1e-9)
+        assert figures[g]["seconds_bruteforce_equal_error"] == pytest.approx(0.02 + 0.001 * 100, rel=1e-9)
+    assert compare.bruteforce_timing(bf) == ([1, 2, 4, 8, 16, 64, 256], [seconds[i] for i in (0, 1, 2, 3, 4, 6, 8)])
+    # fewer than two powers of two: every render prices it
+    assert compare.bruteforce_timing(bf[4:6]) == ([16, 35], seconds[4:6])
+
+
 def test_reference_noise_of_a_region_from_the_per_pixel_estimates():
     """The subtraction's standard error: sqrt(2) std / sqrt(n) of the per-pixel estimates, which
     also sets which errors count as resolved; checked against the spread of what it subtracts."""

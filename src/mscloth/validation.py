@@ -50,13 +50,15 @@ def footprint_expectation(bsdf, uv, half_texels, tile_texels, wi, wo, n=20000, s
     return float(v.mean()), float(v.std() / np.sqrt(n)), bool(np.array(st.fp.use)[0])
 
 
-def probe_expectation(bsdf, si, wo, seed=1, grid=None):
+def probe_expectation(bsdf, si, wo, seed=1, grid=None, exact=None, probe=None):
     """(mean, standard error) of the red channel of the footprint eval over random residual
     texels, SAT corner rounding and probe choice, one per lane of ``si``, with the
     footprint shaded whole; and the probe boxes each lane shaded
-    (:meth:`probe_brute_force` takes them): the lanes' rounded boxes, an array
+    (:meth:`probe_brute_force` takes them): the lanes' boxes (rounded, or exact), an array
     (boxes, 4, n) of x0, y0, x1, y1 (empty boxes where a probe has fewer parts).
-    ``grid``: G of the G x G residual texels (default: the estimator's own)."""
+    ``grid``: G of the G x G residual texels, ``exact``: exact SAT corners (default: the
+    estimator's own); ``probe``: a number in [0, 1) that picks one probe for every lane
+    (default: a random one each, as the pixel's samples spread over them)."""
     n = dr.width(si)
     enabled = enabled_lobes(non_delta_context())
     estimator = bsdf.estimator
@@ -64,10 +66,11 @@ def probe_expectation(bsdf, si, wo, seed=1, grid=None):
     rng = np.random.default_rng(seed)
     xi = mi.Point2f(rng.random(n), rng.random(n))
     xi_round = mi.Point2f(rng.random(n), rng.random(n))
-    fp = estimator.footprint(si, fr, mi.Float(0.0), mi.Float(rng.random(n)))
-    st = estimator.state(si, fr, enabled, xi, xi_round, fp=fp, grid=grid)
+    fp = estimator.footprint(si, fr, mi.Float(0.0), mi.Float(rng.random(n) if probe is None else np.full(n, probe)))
+    exact = estimator.exact_corners() if exact is None else exact
+    st = estimator.state(si, fr, enabled, xi, xi_round, fp=fp, grid=grid, exact=exact)
     v = np.array(estimator.eval(fr, st, fr.mirror(mi.Vector3f(_unit(wo))), enabled))[0]
-    return float(v.mean()), float(v.std() / np.sqrt(n)), lane_boxes(estimator.rounded_box(fp, xi_round)[0], n)
+    return float(v.mean()), float(v.std() / np.sqrt(n)), lane_boxes(estimator.shaded_boxes(fp, xi_round, exact)[0], n)
 
 
 def lane_boxes(boxes, n: int) -> np.ndarray:

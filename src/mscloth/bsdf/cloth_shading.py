@@ -160,8 +160,8 @@ class ClothShading:
         estimator = self.estimator
         xi, xi_round, _ = hashed
 
-        def shade(grid=None):
-            st = estimator.state(si, fr, enabled, xi, xi_round, fp=fp, grid=grid)
+        def shade(grid=None, exact=None):
+            st = estimator.state(si, fr, enabled, xi, xi_round, fp=fp, grid=grid, exact=exact)
 
             def eval_pdf(wo, unrolled):
                 return estimator.eval_pdf(fr, st, wo, enabled, unrolled)
@@ -172,9 +172,10 @@ class ClothShading:
         large = estimator.large_probe_grid()
         if large is None:
             return shade()
-        # Large probes take a finer residual grid; a packet of small ones skips its texels.
+        # Large probes take a finer residual grid and rounded SAT corners (their rounding
+        # noise is small); a packet of small ones skips the grid's texels.
         texels, grid = large
-        return branch(fp.probe_texels() >= texels, (si, wos, samples), true_fn=lambda: shade(grid),
+        return branch(fp.probe_texels() >= texels, (si, wos, samples), true_fn=lambda: shade(grid, False),
                       false_fn=shade, label="cloth_large_probe")
 
     def _evaluate(self, si, fr: ViewFrame, eval_pdf, wos, sampled):
@@ -240,8 +241,9 @@ class ClothShading:
         si.duv_dx/dy (multi-scale; below 8 texels, possibly of the texel at the point
         fibre-level shading takes) or of the texel (used by clothpath's shadow rays).
         The footprint's I is its mean over the stochastically rounded box, the one the
-        footprint BSDF shades: the crossing lets through what the BSDF's gap lobe
-        does at the same point."""
+        footprint BSDF shades (or, with exact corners, the box it rounds, the same in
+        expectation): the crossing lets through what the BSDF's gap lobe does at the
+        same point."""
         fibre = self.fibre
         fr = fibre.frame(si, active)
         estimator = self.estimator
@@ -259,7 +261,7 @@ class ClothShading:
                 # were most of what a shadow ray crossing cloth cost). Its mean stays in
                 # [0, 1]: over the exact area it did not, and the clip below then let
                 # light through gap-free footprints (docs/decisions.md).
-                _, q = estimator.rounded_box(fp, xi_round)
+                _, q = estimator.shaded_boxes(fp, xi_round)
                 return data.scalar_sats.integral(q, data.GAP) / q.area
 
             # Packets whose lanes all have a footprint skip the texel read; packets

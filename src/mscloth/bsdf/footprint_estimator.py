@@ -70,10 +70,10 @@ class FootprintState:
     eval, pdf and sample (:meth:`FootprintEstimator.state`)."""
 
     fp: Footprint
-    #: The SAT query of the rounded boxes, and the inverse of their area.
+    #: The SAT query of the shaded boxes (rounded or exact), and the inverse of their area.
     q: RectQuery | RectUnion
     inv_area: mi.Float
-    #: Yarn coverage and mean yarn colour over the rounded box.
+    #: Yarn coverage and mean yarn colour over the shaded boxes.
     yarn_mean: mi.Float | None = None
     yarn_albedo: mi.Color3f | None = None
     #: The footprint's mean t t^T over its yarn (xx, xy, xz, yy, yz, zz; mirrored frame);
@@ -215,6 +215,18 @@ class FootprintEstimator:
     SUB_PROBES = None
     SPLIT_BELOW_FIT = 0.7
 
+    #: Read the probes' SAT corners exactly (bilinear, four reads per corner and channel)
+    #: instead of rounding them stochastically to whole texels (one read), by the fibres'
+    #: roughness: (below this roughness, True), first match; else False. Large probes
+    #: (LARGE_PROBE_GRIDS) keep the rounding. On shiny cloth the rounding was most of the
+    #: noise of mid-sized probes: satin-plane noise per sample near / middle / far
+    #: 0.045 / 0.0073 / 0.00022 -> 0.033 / 0.0015 / 0.00018 (every probe exact), for 33% more
+    #: time per sample; rough cloth gained less than it paid (sphere -1 to -7% noise for +14%
+    #: time) (performance log L48).
+    EXACT_CORNERS_BY_ROUGHNESS = ((0.15, True),)
+    #: Exact corners for every roughness (True) or none (False) instead (experiments), or None.
+    EXACT_CORNERS = None
+
     #: Sum the residual texels' terms in a symbolic loop (:meth:`eval_pdf`); False: one
     #: traced copy per texel (experiments; where gradients flow, always).
     LOOP_TEXELS = True
@@ -224,7 +236,8 @@ class FootprintEstimator:
               "DEFENSIVE_COSINE", "DEFENSIVE_MIN_SIDE",
               "CONSISTENT_VISIBILITY_CV", "RESIDUAL_GRIDS", "RESIDUAL_GRID", "STRATIFY",
               "SUB_PROBES_BY_ROUGHNESS", "SUB_PROBES", "SPLIT_BELOW_FIT",
-              "LARGE_PROBE_GRIDS", "LARGE_PROBE_TEXELS", "LARGE_PROBE_GRID")
+              "LARGE_PROBE_GRIDS", "LARGE_PROBE_TEXELS", "LARGE_PROBE_GRID",
+              "EXACT_CORNERS_BY_ROUGHNESS", "EXACT_CORNERS")
 
     def __init__(self, fibre: FibreBSDF, roughness: float):
         self.fibre = fibre
@@ -415,20 +428,26 @@ class FootprintEstimator:
         return (fr.x + (xi.x - 0.5) * ax + (xi.y - 0.5) * bx,
                 fr.y + (xi.x - 0.5) * ay + (xi.y - 0.5) * by)
 
-    def rounded_box(self, fp: Footprint, xi_round):
-        """The footprint's probe boxes with their corners rounded stochastically to whole
-        texels by ``xi_round`` (the boxes that are shaded), and their SAT query (a
-        :class:`.sat_queries.RectUnion` where the probe has parts)."""
+    def shaded_boxes(self, fp: Footprint, xi_round, exact: bool = False):
+        """The footprint's probe boxes as they are shaded, and their SAT query (a
+        :class:`.sat_queries.RectUnion` where the probe has parts): ``exact``, the boxes
+        themselves (bilinear corners, four reads each); else with their corners rounded
+        stochastically to whole texels by ``xi_round`` (one read each; the same mean in
+        expectation, with the rounding's noise)."""
         sats = self.fibre.footprint_data.scalar_sats
-        boxes = [round_box(*b, xi_round.x, xi_round.y) for b in fp.boxes]
-        queries = [sats.query_on_grid(*b) for b in boxes]
+        if exact:
+            boxes = list(fp.boxes)
+            queries = [sats.query(*b) for b in boxes]
+        else:
+            boxes = [round_box(*b, xi_round.x, xi_round.y) for b in fp.boxes]
+            queries = [sats.query_on_grid(*b) for b in boxes]
         return boxes, queries[0] if len(queries) == 1 else RectUnion(queries, fp.split)
 
     # ------------------------------------------------------------------
     # The footprint's state: SAT means, residual texels, sampling mixture
     # ------------------------------------------------------------------
     def state(self, si, fr: ViewFrame, enabled, xi=None, xi_round=None, u_probe=None, fp: Footprint | None = None,
-              grid: int | None = None) -> FootprintState:
+              grid: int | None = None, exact: bool | None = None) -> FootprintState:
         """Everything of the footprint that does not depend on the outgoing direction,
         computed once per shading point and shared by eval, pdf and sample: the SAT
         means over the footprint, the control-variate residual texel, the viewer-side
@@ -439,7 +458,9 @@ class FootprintEstimator:
         by default all three are a hash of (si.uv, si.p), so eval is a deterministic
         function of (si, wo). ``fp``: the footprint :meth:`footprint` gave for these
         numbers, if the caller has it already. ``grid``: G of the G x G residual texels
-        (default :meth:`residual_grid`; :meth:`large_probe_grid` for large probes)."""
+        (default :meth:`residual_grid`; :meth:`large_probe_grid` for large probes).
+        ``exact``: read the SATs at the boxes' exact corners rather than rounded ones
+        (default :meth:`exact_corners`; large probes keep the rounding)."""
         fibre = self.fibre
         fd = fibre.footprint_data
         sats = fd.scalar_sats
@@ -454,15 +475,15 @@ class FootprintEstimator:
         if self.STRATIFY and fp.within is not None:
             known = fp.within.x >= 0.0
             xi = dr.select(known, fp.within, xi)
-        # The footprint shaded is its box with the corners rounded stochastically to
-        # whole texels (expected extent: the footprint's), and every mean is the exact
-        # mean over that rounded box: one SAT read per corner and channel instead of four
-        # (these reads dominate the cost), and means that stay means. Normalised by the
-        # exact area instead, the integrals were unbiased but not bounded: at 2-4 texels
+        # Every mean is the exact mean over the boxes shaded: the exact ones (four reads
+        # per corner and channel), or the boxes with their corners rounded stochastically
+        # to whole texels (expected extent: the footprint's; one read, with the rounding's
+        # noise). Rounded integrals normalised by the exact area instead were unbiased
+        # but not bounded: at 2-4 texels
         # the yarn coverage of a gap-free footprint read 0.54-1.62, so the gap lobe let
         # light through where there are no gaps (its negative values cannot be sampled)
         # and lobe probabilities reached -39 and +40 (docs/performance-log.md L10).
-        boxes, q = self.rounded_box(fp, xi_round)
+        boxes, q = self.shaded_boxes(fp, xi_round, self.exact_corners() if exact is None else exact)
         inv_area = dr.rcp(q.area)
 
         # Every channel at once (gap, moments, cluster histogram, albedo): packets of four
@@ -554,6 +575,11 @@ class FootprintEstimator:
         found = self._by_roughness(fixed, rule, None)
         return None if found is None else (float(found[0]), int(found[1]))
 
+    def exact_corners(self) -> bool:
+        """Whether probes other than large ones read their SAT corners exactly
+        (EXACT_CORNERS_BY_ROUGHNESS, or EXACT_CORNERS if set)."""
+        return bool(self._by_roughness(self.EXACT_CORNERS, self.EXACT_CORNERS_BY_ROUGHNESS, False))
+
     def sub_probes(self) -> int:
         """Parts per probe (SUB_PROBES_BY_ROUGHNESS, or SUB_PROBES if set)."""
         return int(self._by_roughness(self.SUB_PROBES, self.SUB_PROBES_BY_ROUGHNESS, 1))
@@ -574,7 +600,7 @@ class FootprintEstimator:
         return tuple((float(k % g), float(k // g), ((k * 7) % n) / n, ((k * 5) % n + 0.5) / n) for k in range(n))
 
     def _stratified_texels(self, fr: ViewFrame, boxes, xi, g: int) -> list[Texel]:
-        """The residual texels, one uniform in each cell of a grid over the rounded boxes
+        """The residual texels, one uniform in each cell of a grid over the shaded boxes
         the SAT means cover (from ``xi``); the grid's first axis runs through the boxes
         one after the other, each its share of the total area, so that the texels are
         uniform over them as the means weigh them."""

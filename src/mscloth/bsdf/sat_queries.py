@@ -175,30 +175,48 @@ class ResidualSATs:
 
     def integrals(self, q: RectQuery, first: int, n: int):
         """:meth:`integral` of the ``n`` channels from ``first`` on (Python ints), read in
-        packets where the layout allows (a rounded query, channels in whole fours)."""
+        packets where the layout allows (channels in whole fours): one packet per corner
+        of a rounded query, four (bilinear) of an exact one."""
         if isinstance(q, RectUnion):
             return q.sum_over(lambda part: self.integrals(part, first, n))
         C = self.channels
-        if not (q.on_grid and n % 4 == 0 and first % 4 == 0 and C % 4 == 0):
+        if not (n % 4 == 0 and first % 4 == 0 and C % 4 == 0):
             return [self.integral(q, first + j) for j in range(n)]
         totals = gather_block(self.total, mi.UInt32(first), n)
         means = gather_block(self.mean, mi.UInt32(first), n)
+
+        def lerp_blocks(a, b, t):
+            return [dr.lerp(u, v, t) for u, v in zip(a, b)]
 
         def read_edges():  # n of the last column or row for each one a corner can need
             values = []
             for _, c in q.corners:
                 col, row = self._edge_terms(c)
                 if col:
-                    values += gather_block(self.last_col, c.iy * C + first, n, c.use_col)
+                    at = c.iy * C + first
+                    block = gather_block(self.last_col, at, n, c.use_col)
+                    if not q.on_grid:
+                        block = lerp_blocks(block, gather_block(self.last_col, at + C, n, c.use_col), c.fy)
+                    values += block
                 if row:
-                    values += gather_block(self.last_row, c.ix * C + first, n, c.use_row)
+                    at = c.ix * C + first
+                    block = gather_block(self.last_row, at, n, c.use_row)
+                    if not q.on_grid:
+                        block = lerp_blocks(block, gather_block(self.last_row, at + C, n, c.use_row), c.fx)
+                    values += block
             return values
 
         edges = iter(q.edge_reads(read_edges, 4 * n))
         zero = [0.0] * n
         out = [mi.Float(0.0) for _ in range(n)]
         for sign, c in q.corners:
-            inner = gather_block(self.data, c.cell * C + first, n)
+            at = c.cell * C + first
+            inner = gather_block(self.data, at, n)
+            if not q.on_grid:
+                below = gather_block(self.data, at + self.row_stride, n)
+                inner = lerp_blocks(lerp_blocks(inner, gather_block(self.data, at + C, n), c.fx),
+                                    lerp_blocks(below, gather_block(self.data, at + self.row_stride + C, n), c.fx),
+                                    c.fy)
             has_col, has_row = self._edge_terms(c)
             col = [next(edges) for _ in range(n)] if has_col else zero
             row = [next(edges) for _ in range(n)] if has_row else zero

@@ -45,7 +45,8 @@ from .metrics import RELMSE_EPS, flip_map, relmse_map
 from .references import reference_image
 from .regions import REGIONS, depth_and_cloth, region_masks
 from .renders import BRUTEFORCE_SEED, MULTISCALE_SEED, scene_dict, timed_render
-from .speedup import MIN_REGION_PIXELS, ReferenceNoise, closest_in_time, equal_error_time, few_pixels_warning
+from .speedup import (MIN_REGION_PIXELS, ReferenceNoise, closest_in_time, equal_error_time, few_pixels_warning,
+                      time_at)
 
 # --------------------------------------------------------------------------- curves
 
@@ -121,23 +122,23 @@ def region_figures(points_ms, points_bf, spp_ms_chosen, noise) -> tuple[dict, in
     bf_times = [p["seconds"] for p in points_bf]
     bf_index = closest_in_time(bf_times, ms["seconds"])
     bf = points_bf[bf_index]
+    timed = bruteforce_timing(points_bf)
     for g in REGIONS:
         ref_noise = noise[g]
         raw_target = max(ms["relmse"][g], 1e-30)
-        raw_errors = [max(p["relmse"][g], 1e-30) for p in points_bf]
-        t_raw, _ = equal_error_time(bf_times, raw_errors, raw_target)
-        spp_raw, _ = equal_error_time([p["spp"] for p in points_bf], raw_errors, raw_target)
+        bf_spps = [p["spp"] for p in points_bf]
+        # The samples brute force needs, from its error-vs-spp curve (no timing in it).
+        spp_raw, _ = equal_error_time(bf_spps, [max(p["relmse"][g], 1e-30) for p in points_bf], raw_target)
         own_target = ref_noise.own_error(ms["relmse"][g])
-        resolved = [(p, own) for p in points_bf if (own := ref_noise.own_error(p["relmse"][g])) is not None]
+        resolved = [(p["spp"], own) for p in points_bf if (own := ref_noise.own_error(p["relmse"][g])) is not None]
         if resolved:
             target = ref_noise.resolution if own_target is None else own_target
-            t_equal, extrapolated = equal_error_time([p["seconds"] for p, _ in resolved],
-                                                     [own for _, own in resolved], target)
-            # spp brute force needs for that error, from its error-vs-spp curve: no timing in it
-            spp_equal, _ = equal_error_time([p["spp"] for p, _ in resolved], [own for _, own in resolved], target)
+            spp_equal, extrapolated = equal_error_time(*zip(*resolved), target)
         else:  # brute force's first point is already within the reference's noise: nothing to subtract from
-            target, t_equal, spp_equal = raw_target, t_raw, spp_raw
-            extrapolated = equal_error_time(bf_times, raw_errors, raw_target)[1]
+            target = raw_target
+            spp_equal, extrapolated = equal_error_time(bf_spps, [max(p["relmse"][g], 1e-30) for p in points_bf],
+                                                       raw_target)
+        t_equal, t_raw = time_at(spp_equal, *timed), time_at(spp_raw, *timed)
         same = min(points_bf, key=lambda p: (abs(math.log(p["spp"] / ms["spp"])), p["spp"]))
         out[g] = {
             "speedup": t_equal / ms["seconds"],
@@ -167,6 +168,17 @@ def region_figures(points_ms, points_bf, spp_ms_chosen, noise) -> tuple[dict, in
             "curve_bruteforce": _curve(points_bf, g, ref_noise),
         }
     return out, ms_index, bf_index
+
+
+def bruteforce_timing(points) -> tuple[list, list]:
+    """(sample counts, seconds) that price brute force at any count
+    (:func:`.speedup.time_at`): its curve's renders at powers of two where it has two or
+    more, else all of them. Mitsuba renders other counts (the ``multijitter`` sampler rounds
+    32 up to 35, 128 to 132, 512 to 528) at 1.5-1.7x the time per sample of the powers of
+    two around them, a cost brute force need not pay."""
+    powers = [p for p in points if p["spp"] & (p["spp"] - 1) == 0]
+    chosen = powers if len(powers) >= 2 else points
+    return [p["spp"] for p in chosen], [p["seconds"] for p in chosen]
 
 
 def _curve(points, region: str, ref_noise) -> list[dict]:
@@ -282,9 +294,10 @@ def run_compare(name: str, width: int, height: int, budget: float = 60.0, refere
             "relmse": f"mean over region pixels and RGB of (img-ref)^2/(ref^2+{RELMSE_EPS:g})",
             "flip": "flip_evaluator LDR-FLIP of sRGB-encoded images clipped to [0,1], mean over region pixels",
             "seconds": "wall time of one mi.render at that spp minus Dr.Jit kernel compilation",
-            "speedup": "brute-force seconds to reach multi-scale's own relMSE (relMSE minus the reference's "
-                       "noise) on its own-relMSE-vs-seconds curve (log-log interpolation; beyond it, its last "
-                       "slope or -1, whichever is steeper) / multi-scale seconds",
+            "speedup": "brute-force seconds at the spp it needs to reach multi-scale's own relMSE (relMSE minus "
+                       "the reference's noise), read off its own-relMSE-vs-spp curve (log-log interpolation; beyond "
+                       "it, its last slope or -1, whichever is steeper) and priced linearly between its renders at "
+                       "powers of two / multi-scale seconds",
         },
         "compile_seconds": {"multiscale": sum(p["compile_seconds"] for p in points_ms),
                             "bruteforce": sum(p["compile_seconds"] for p in points_bf)},

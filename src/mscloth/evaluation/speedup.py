@@ -1,15 +1,15 @@
 """The equal-error speed-up of ``mscloth compare`` from two convergence curves, and how far a
 region's speed-up can be trusted.
 
-For each region: the time brute force needs to reach multi-scale's relMSE at
-its chosen spp, read off brute force's relMSE-vs-seconds curve, interpolated linearly in
-log-log between the two points around the first crossing, divided by multi-scale's
-seconds. When brute force never gets down to that error, the time is extrapolated from its
-last point with its last stretch's slope or the Monte Carlo slope -1 (error ~ 1/time),
-whichever is steeper: brute force's stratified pixel samples often converge faster than
-1/time, and assuming they slow down at once would flatter multi-scale. When brute force is
-already below that error at its first point, slope -1 backwards. Either is flagged
-``extrapolated: true``.
+For each region: the samples per pixel brute force needs to reach multi-scale's error at
+its chosen spp, read off brute force's error-vs-spp curve, interpolated linearly in log-log
+between the two points around the first crossing; their time, linear between brute force's
+renders at the counts around it (:func:`time_at`); over multi-scale's seconds. When brute
+force never gets down to that error, the count is extrapolated from its last point with its
+last stretch's slope or the Monte Carlo slope -1 (error ~ 1/spp), whichever is steeper:
+brute force's stratified pixel samples often converge faster than 1/spp, and assuming they
+slow down at once would flatter multi-scale. When brute force is already below that error
+at its first point, slope -1 backwards. Either is flagged ``extrapolated: true``.
 
 The errors are each method's own: relMSE against the reference minus the reference's own
 noise (:class:`ReferenceNoise`), which every image's relMSE contains alike. Without that
