@@ -26,10 +26,17 @@ def setup_mitsuba():
 
 
 def parse_value(text: str):
-    """'true' / 'false', an int or a float."""
+    """'true' / 'false', 'none', an int, a float, or a Python tuple or list literal (the
+    estimator's rules by roughness: '()' empties one)."""
     lowered = text.lower()
     if lowered in ("true", "false"):
         return lowered == "true"
+    if lowered == "none":
+        return None
+    if text.strip()[:1] in ("(", "["):
+        import ast
+
+        return ast.literal_eval(text)
     try:
         return int(text)
     except ValueError:

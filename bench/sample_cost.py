@@ -4,7 +4,7 @@ against brute force (``multiscale`` false) in the same rounds. A variant that sw
 piece off (all lanes fibre level, visibility off, fewer residual texels) prices that piece.
 
     .venv/bin/python bench/sample_cost.py satin-plane \\
-        --variant "all fibre level: --attr POINT_TEXELS=1e9 --attr FOOTPRINT_TEXELS=2e9"
+        --variant "all fibre level: --attr POINT_TEXELS=1e9 --attr FOOTPRINT_TEXELS=2e9 --attr BLEND_TEXELS_BY_ROUGHNESS=()"
 
 ``--region near|middle|far`` renders only the bounding box of that region's pixels (a film
 crop), so that the time per sample is the region's own rather than the whole frame's.

@@ -165,7 +165,7 @@ SHINY_SATIN = {"type": "cloth", "pattern": "satin-5-2", "roughness": 0.12, "spec
 
 @pytest.mark.parametrize("params", [CLOTH, SHINY_SATIN], ids=["rough plain", "shiny satin"])
 def test_residual_texels_summed_in_one_loop_equal_their_unrolled_sum(params, monkeypatch):
-    """The footprint BSDF sums its residual texels' terms (2x2 on rough cloth, 3x3 on
+    """The footprint BSDF sums its residual texels' terms (2x2 on rough cloth, 4x4 on
     shiny) in one symbolic loop, each texel's fields picked by its index: the same values
     and densities, to the bit, as one traced copy per texel, for viewers above and below,
     over footprints inside a tile and over whole tiles (where the control variate's

@@ -137,6 +137,13 @@ class FootprintEstimator:
     #: 0.024 -> 0.017; docs/performance-log.md L24).
     POINT_TEXELS = 16.0
     FOOTPRINT_TEXELS = 32.0
+    #: ... but by the fibres' roughness: (below this roughness, POINT_TEXELS,
+    #: FOOTPRINT_TEXELS), first match; else the two above. With exact SAT corners and 4 x 4
+    #: residual texels (below) shiny cloth's footprint beats point samples down to a few
+    #: texels: satin-plane near, noise per sample 0.033 (16 / 32) -> 0.016 (4 / 8) -> 0.0077
+    #: (2 / 4), squared bias 1.6e-5 at 2 / 4, for +25% time; the satin spheres' near -24% at
+    #: 4 / 8 (performance log L48).
+    BLEND_TEXELS_BY_ROUGHNESS = ((0.15, 2.0, 4.0),)
     #: Most probes (slices) across a footprint (more: boxes that fit long turned slices
     #: better, more variance between them). 8 left satin-plane's squared bias at
     #: 3.9e-4 / 3.6e-4 (middle / far), 16 at 6e-5 / 2.6e-5 for 11% / 34% more noise per
@@ -175,10 +182,12 @@ class FootprintEstimator:
     #: else 2. Each texel costs ~7% of a brute-force sample; the residual's variance is
     #: that of the fibre-level D about its binned copy, large on shiny fibres. Roughness
     #: 0.12, 3 against 2: noise per sample (16 spp) -31% far on the satin spheres, -43% /
-    #: -78% middle / far on satin-plane, for +10-22% time. Rough cloth (0.3-0.4), 2
-    #: against 1: noise x time equal on the plane, -20 to -50% on sphere, drape and denim
-    #: (performance log L25, L27).
-    RESIDUAL_GRIDS = ((0.15, 3),)
+    #: -78% middle / far on satin-plane, for +10-22% time. With exact corners (below), 4
+    #: against 3: satin-plane middle 0.0015 -> 0.00069, satin far -11%, for +4-10% time
+    #: (5: 0.00048 for +30%, with the bias, 2e-5, then most of the middle's error at 16
+    #: spp). Rough cloth (0.3-0.4), 2 against 1: noise x time equal on the plane, -20 to
+    #: -50% on sphere, drape and denim (performance log L25, L27, L48).
+    RESIDUAL_GRIDS = ((0.15, 4),)
     #: G for every roughness instead (experiments), or None.
     RESIDUAL_GRID = None
     #: A finer grid for large probes: (below this roughness, from this many texels in the
@@ -232,7 +241,7 @@ class FootprintEstimator:
     LOOP_TEXELS = True
 
     #: The tuning constants above (a cached calibration, measured with them, keys on them).
-    TUNING = ("POINT_TEXELS", "FOOTPRINT_TEXELS", "MAX_PROBES", "CELLS", "CELLS_BELOW", "CELLS_BELOW_BY_ROUGHNESS",
+    TUNING = ("POINT_TEXELS", "FOOTPRINT_TEXELS", "BLEND_TEXELS_BY_ROUGHNESS", "MAX_PROBES", "CELLS", "CELLS_BELOW", "CELLS_BELOW_BY_ROUGHNESS",
               "DEFENSIVE_COSINE", "DEFENSIVE_MIN_SIDE",
               "CONSISTENT_VISIBILITY_CV", "RESIDUAL_GRIDS", "RESIDUAL_GRID", "STRATIFY",
               "SUB_PROBES_BY_ROUGHNESS", "SUB_PROBES", "SPLIT_BELOW_FIT",
@@ -274,9 +283,10 @@ class FootprintEstimator:
         the probes taken one per sample. The expected probe is the parallelogram with its
         edges blurred over a fraction of a slice, not its bounding box, at one box's reads.
 
-        Footprints covering fewer than ``POINT_TEXELS`` texels are shaded fibre level at
-        a point drawn uniformly in the parallelogram (exactly the fibre-level BSDF at
-        si.uv for a zero footprint), those over ``FOOTPRINT_TEXELS`` whole, and those
+        Footprints covering fewer than ``POINT_TEXELS`` texels (:meth:`blend_texels`) are
+        shaded fibre level at a point drawn uniformly in the parallelogram (exactly the
+        fibre-level BSDF at si.uv for a zero footprint), those over ``FOOTPRINT_TEXELS``
+        whole, and those
         between by one or the other, picked by ``u`` with a weight linear in the
         area: both estimate the same footprint mean, and a footprint of a few texels
         was noisier than a fibre-level sample. ``u_probe`` (default: ``u`` rescaled
@@ -295,11 +305,12 @@ class FootprintEstimator:
         # Width across the long edge; a degenerate (line) footprint covers a texel's width.
         width = area * dr.select(length > 0.0, dr.rcp(length), 0.0)
         texels = dr.maximum(length, 1.0) * dr.maximum(width, 1.0)
-        span = self.FOOTPRINT_TEXELS - self.POINT_TEXELS
+        point_texels, footprint_texels = self.blend_texels()
+        span = footprint_texels - point_texels
         if span > 0.0:
-            p_use = dr.clip((texels - self.POINT_TEXELS) * (1.0 / span), 0.0, 1.0)
-        else:  # no blend zone (experiments): a step at POINT_TEXELS
-            p_use = dr.select(texels >= self.POINT_TEXELS, 1.0, 0.0)
+            p_use = dr.clip((texels - point_texels) * (1.0 / span), 0.0, 1.0)
+        else:  # no blend zone (experiments): a step at point_texels
+            p_use = dr.select(texels >= point_texels, 1.0, 0.0)
         p_use = dr.select(finite & (length > 0.0), p_use, 0.0)
         # (p_use > 0) first: a zero footprint of constant si.duv_dx/dy is then a literal
         # False, and the symbolic if traces the fibre-level branch alone.
@@ -575,6 +586,14 @@ class FootprintEstimator:
         found = self._by_roughness(fixed, rule, None)
         return None if found is None else (float(found[0]), int(found[1]))
 
+    def blend_texels(self) -> tuple[float, float]:
+        """(point, footprint): footprints under the first many texels are shaded fibre
+        level, over the second whole, blended between (BLEND_TEXELS_BY_ROUGHNESS, else
+        POINT_TEXELS and FOOTPRINT_TEXELS)."""
+        rule = tuple((below, (point, whole)) for below, point, whole in self.BLEND_TEXELS_BY_ROUGHNESS)
+        point, whole = self._by_roughness(None, rule, (self.POINT_TEXELS, self.FOOTPRINT_TEXELS))
+        return float(point), float(whole)
+
     def exact_corners(self) -> bool:
         """Whether probes other than large ones read their SAT corners exactly
         (EXACT_CORNERS_BY_ROUGHNESS, or EXACT_CORNERS if set)."""
@@ -789,7 +808,7 @@ class FootprintEstimator:
         """The sums over the residual texels of ``terms(texel, *its extras)`` (a tuple of
         ``count`` Floats; ``extras``: lists of a value per texel, or None each). In JIT
         variants a symbolic loop, so the traced code holds one copy of the per-texel work
-        instead of one per texel (3x3 on shiny cloth: performance log L40); ``unrolled``
+        instead of one per texel (4x4 on shiny cloth; 3x3 in performance log L40); ``unrolled``
         (where gradients flow) one copy each. Both add in texel order."""
         n = len(texels)
         if unrolled or n < 2 or not dr.is_jit_v(mi.Float):
