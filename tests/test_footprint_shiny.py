@@ -218,6 +218,23 @@ def test_only_turned_slices_of_shiny_cloth_are_cut_into_parts():
         assert np.all(np.hypot(*(centre(boxes[0]) - centre(boxes[1]))) > 1.0)
 
 
+def test_slightly_turned_slices_are_cut_only_from_sixteen_texels():
+    """A footprint turned by 0.15 rad: its cells fill 77% of their bounding boxes, over
+    SPLIT_BELOW_FIT (0.7) but under SPLIT_BELOW_FIT_LARGE's 0.9, so cells of 16 texels or
+    more are cut in two (their blurred ends were most of the remaining bias) and smaller
+    ones are not (cut, they raised the near bias 4x, L49)."""
+    bsdf = mi.load_dict(dict(SATIN, roughness=0.1))
+    texels, fit = bsdf.estimator.SPLIT_BELOW_FIT_LARGE
+    assert bsdf.estimator.SPLIT_BELOW_FIT < 0.77 < fit
+    for side, split in ((6.0, False), (10.0, True), (24.0, True)):
+        si = validation.sheared_interaction(16, [0.3, 0.55], side, 0.0, N_TEXELS, [0.2, 0.1, 0.97], rotation=0.15)
+        fp = bsdf.estimator.footprint(si, bsdf.fibre.frame(si, True), mi.Float(0.0),
+                                      mi.Float((np.arange(16) + 0.5) / 16))
+        assert np.all(np.broadcast_to(np.asarray(fp.split), 16) == split), side
+        cell = np.median(np.array(fp.probe_texels()))
+        assert (cell >= texels) == split, (side, cell)
+
+
 @pytest.mark.parametrize("pair", ["near-specular", "grazing-across"])
 def test_large_probes_stay_unbiased_with_the_finer_grid(pair):
     """The finer residual grid of large probes (5 x 5 texels over a turned footprint cut into

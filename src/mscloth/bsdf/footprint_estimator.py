@@ -223,6 +223,13 @@ class FootprintEstimator:
     #: The part count for every roughness instead (experiments), or None.
     SUB_PROBES = None
     SPLIT_BELOW_FIT = 0.7
+    #: ... and slices of at least this many texels below this fit: (texels, fit), or None.
+    #: The probes' blurred ends were most of shiny cloth's remaining bias (satin-plane:
+    #: 64 slices instead of 16 left none, for 30x the noise); splitting slices of 16
+    #: texels or more below a fit of 0.9: squared bias middle / far 2.0e-5 / 1.3e-5 ->
+    #: 9e-6 / 4.6e-6, noise +6% / -5%, +4% time; smaller slices split that way raised the
+    #: near bias 1.6e-5 -> 7e-5 (performance log L49).
+    SPLIT_BELOW_FIT_LARGE = (16.0, 0.9)
 
     #: Read the probes' SAT corners exactly (bilinear, four reads per corner and channel)
     #: instead of rounding them stochastically to whole texels (one read), by the fibres'
@@ -244,7 +251,7 @@ class FootprintEstimator:
     TUNING = ("POINT_TEXELS", "FOOTPRINT_TEXELS", "BLEND_TEXELS_BY_ROUGHNESS", "MAX_PROBES", "CELLS", "CELLS_BELOW", "CELLS_BELOW_BY_ROUGHNESS",
               "DEFENSIVE_COSINE", "DEFENSIVE_MIN_SIDE",
               "CONSISTENT_VISIBILITY_CV", "RESIDUAL_GRIDS", "RESIDUAL_GRID", "STRATIFY",
-              "SUB_PROBES_BY_ROUGHNESS", "SUB_PROBES", "SPLIT_BELOW_FIT",
+              "SUB_PROBES_BY_ROUGHNESS", "SUB_PROBES", "SPLIT_BELOW_FIT", "SPLIT_BELOW_FIT_LARGE",
               "LARGE_PROBE_GRIDS", "LARGE_PROBE_TEXELS", "LARGE_PROBE_GRID",
               "EXACT_CORNERS_BY_ROUGHNESS", "EXACT_CORNERS")
 
@@ -396,7 +403,11 @@ class FootprintEstimator:
             # the region of parts x n slices, at one sample per slice.
             fit = dr.abs(px * sy - py * sx) * dr.rcp(
                 dr.maximum((dr.abs(px) + dr.abs(sx)) * (dr.abs(py) + dr.abs(sy)), 1e-30))
-            split = finite & (fit < self.SPLIT_BELOW_FIT)
+            below = self.SPLIT_BELOW_FIT
+            if self.SPLIT_BELOW_FIT_LARGE is not None:
+                slice_texels, wider = self.SPLIT_BELOW_FIT_LARGE
+                below = dr.select(dr.abs(px * sy - py * sx) >= slice_texels, wider, below)
+            split = finite & (fit < below)
             prx, pry = self._part_box(px * (1.0 / parts), py * (1.0 / parts), sx, sy, finite)
             boxes = []
             for j in range(parts):
