@@ -311,7 +311,8 @@ def bench_compare(scenes=None, res=COMPARE_RES, budget: float = COMPARE_BUDGET,
     rows = []
     for name in (SCENES if scenes is None else scenes):
         out = Path(out_root) / f"compare-{name}"
-        result = run_compare(name, *res, budget=budget, reference_spp=COMPARE_REFERENCE_SPP, out_dir=out, quiet=True)
+        result = run_compare(name, *res, budget=budget, reference_spp=COMPARE_REFERENCE_SPP, out_dir=out,
+                             quiet=True)
         result["frame_time"] = interleaved_renders(name, *res, frame_counts(result), FRAME_TIME_ROUNDS)
         rows.append((name, result))
         print("  " + name + ": " + ", ".join(f"{g} {result[g]['speedup']:.2f}x, at interleaved time "

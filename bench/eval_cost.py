@@ -112,7 +112,8 @@ def main(argv=None) -> int:
             set_class_attributes(saved)
         # Texels per unit of uv along u: the tile's width times the cloth's uv_scale (without
         # it, a finely tiled cloth's footprints came out uv_scale times too large a side).
-        tile = float(np.array(bsdf.fibre.tile.width.f).ravel()[0]) * float(np.array(bsdf.fibre.params.uv_scale).ravel()[0])
+        tile = (float(np.array(bsdf.fibre.tile.width.f).ravel()[0])
+                * float(np.array(bsdf.fibre.params.uv_scale).ravel()[0]))
         si, wo, s1, s2 = lanes(mi, args.lanes, side, tile, seed=5)
         dr.eval(si, wo, s1, s2)
         setups.append((label, attrs, bsdf, si, wo, s1, s2))

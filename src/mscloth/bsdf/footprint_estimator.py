@@ -248,7 +248,8 @@ class FootprintEstimator:
     LOOP_TEXELS = True
 
     #: The tuning constants above (a cached calibration, measured with them, keys on them).
-    TUNING = ("POINT_TEXELS", "FOOTPRINT_TEXELS", "BLEND_TEXELS_BY_ROUGHNESS", "MAX_PROBES", "CELLS", "CELLS_BELOW", "CELLS_BELOW_BY_ROUGHNESS",
+    TUNING = ("POINT_TEXELS", "FOOTPRINT_TEXELS", "BLEND_TEXELS_BY_ROUGHNESS",
+              "MAX_PROBES", "CELLS", "CELLS_BELOW", "CELLS_BELOW_BY_ROUGHNESS",
               "DEFENSIVE_COSINE", "DEFENSIVE_MIN_SIDE",
               "CONSISTENT_VISIBILITY_CV", "RESIDUAL_GRIDS", "RESIDUAL_GRID", "STRATIFY",
               "SUB_PROBES_BY_ROUGHNESS", "SUB_PROBES", "SPLIT_BELOW_FIT", "SPLIT_BELOW_FIT_LARGE",
@@ -401,12 +402,12 @@ class FootprintEstimator:
             # A turned slice filling little of its bounding box is shaded as the boxes of
             # its parts, cut as the footprint is (along edge l): the probes then follow
             # the region of parts x n slices, at one sample per slice.
-            fit = dr.abs(px * sy - py * sx) * dr.rcp(
-                dr.maximum((dr.abs(px) + dr.abs(sx)) * (dr.abs(py) + dr.abs(sy)), 1e-30))
+            slice_area = dr.abs(px * sy - py * sx)
+            fit = slice_area * dr.rcp(dr.maximum((dr.abs(px) + dr.abs(sx)) * (dr.abs(py) + dr.abs(sy)), 1e-30))
             below = self.SPLIT_BELOW_FIT
             if self.SPLIT_BELOW_FIT_LARGE is not None:
                 slice_texels, wider = self.SPLIT_BELOW_FIT_LARGE
-                below = dr.select(dr.abs(px * sy - py * sx) >= slice_texels, wider, below)
+                below = dr.select(slice_area >= slice_texels, wider, below)
             split = finite & (fit < below)
             prx, pry = self._part_box(px * (1.0 / parts), py * (1.0 / parts), sx, sy, finite)
             boxes = []

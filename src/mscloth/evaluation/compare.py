@@ -126,18 +126,16 @@ def region_figures(points_ms, points_bf, spp_ms_chosen, noise) -> tuple[dict, in
     for g in REGIONS:
         ref_noise = noise[g]
         raw_target = max(ms["relmse"][g], 1e-30)
-        bf_spps = [p["spp"] for p in points_bf]
         # The samples brute force needs, from its error-vs-spp curve (no timing in it).
-        spp_raw, _ = equal_error_time(bf_spps, [max(p["relmse"][g], 1e-30) for p in points_bf], raw_target)
+        spp_raw, raw_extrapolated = equal_error_time([p["spp"] for p in points_bf],
+                                                     [max(p["relmse"][g], 1e-30) for p in points_bf], raw_target)
         own_target = ref_noise.own_error(ms["relmse"][g])
         resolved = [(p["spp"], own) for p in points_bf if (own := ref_noise.own_error(p["relmse"][g])) is not None]
         if resolved:
             target = ref_noise.resolution if own_target is None else own_target
             spp_equal, extrapolated = equal_error_time(*zip(*resolved), target)
         else:  # brute force's first point is already within the reference's noise: nothing to subtract from
-            target = raw_target
-            spp_equal, extrapolated = equal_error_time(bf_spps, [max(p["relmse"][g], 1e-30) for p in points_bf],
-                                                       raw_target)
+            target, spp_equal, extrapolated = raw_target, spp_raw, raw_extrapolated
         t_equal, t_raw = time_at(spp_equal, *timed), time_at(spp_raw, *timed)
         same = min(points_bf, key=lambda p: (abs(math.log(p["spp"] / ms["spp"])), p["spp"]))
         out[g] = {
@@ -198,7 +196,8 @@ def summary_lines(result: dict, spp_multiscale: int, spp_bruteforce: int) -> lis
     for g in REGIONS:
         r = result[g]
         bound = ">" if r.get("reference_limited") else " "
-        lines.append(f"{g:8s}{bound}{r['speedup']:9.2f}x{'*' if r['extrapolated'] else ' '} {r['relmse_multiscale']:10.3g} "
+        lines.append(f"{g:8s}{bound}{r['speedup']:9.2f}x{'*' if r['extrapolated'] else ' '} "
+                     f"{r['relmse_multiscale']:10.3g} "
                      f"{r['relmse_bruteforce']:10.3g} {r['flip_multiscale']:8.4f} {r['flip_bruteforce']:8.4f}"
                      + ("  !" if warnings_[g] else ""))
     if any(result[g]["extrapolated"] for g in REGIONS):

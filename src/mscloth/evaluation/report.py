@@ -171,7 +171,7 @@ def convergence_figure(result: dict):
                     label=f"multi-scale, {r['spp_multiscale']} spp")
             title = f"{g}: " + ("relMSE" if metric == "relmse" else "FLIP")
             if metric == "relmse":
-                # The speed-up compares own errors (relMSE minus the reference's noise): dashed.
+                # The speed-up compares own errors (relMSE minus the reference's noise): dotted.
                 for key, colour in (("curve_bruteforce", "C0"), ("curve_multiscale", "C1")):
                     own = [(p["seconds"], p["relmse_own"]) for p in r[key] if p.get("relmse_own")]
                     if own:
