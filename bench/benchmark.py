@@ -339,15 +339,35 @@ def frame_counts(result: dict) -> dict:
     while n <= largest or len(counts) < 2:
         counts.append(n)
         n *= 4
-    return {"multiscale": (spp,), "bruteforce": tuple(counts)}
+    # Both at a quarter of multi-scale's spp too: the difference prices a sample without
+    # the render's fixed cost (:func:`marginal_time_ratios`).
+    quarter = (spp // 4,) if spp % 4 == 0 else ()
+    return {"multiscale": quarter + (spp,), "bruteforce": quarter + tuple(counts)}
 
 
 def frame_time_ratios(result: dict) -> list[float]:
     """Each round's whole-frame time ratio multi-scale / brute force at multi-scale's spp
     (``result["frame_time"]``, :func:`~mscloth.evaluation.error_budget.interleaved_renders`)."""
     t = result["frame_time"]
-    spp = min(t["multiscale"])
+    spp = result["near"]["spp_multiscale"]
     return [a / b for a, b in zip(t["multiscale"][spp], t["bruteforce"][spp])]
+
+
+def marginal_time_ratios(result: dict) -> list[float] | None:
+    """Each round's time ratio multi-scale / brute force of a sample alone: the time of a
+    render at multi-scale's spp minus one at a quarter of it, for each method (a render's
+    fixed cost, tracing the kernel and launching it, drops out; multi-scale's larger kernel
+    takes longer to trace). None where the rounds hold no quarter count."""
+    t = result["frame_time"]
+    spp = result["near"]["spp_multiscale"]
+    quarter = spp // 4
+    if spp % 4 or any(quarter not in t[m] or spp not in t[m] for m in ("multiscale", "bruteforce")):
+        return None
+
+    def sample_times(m):
+        return [a - b for a, b in zip(t[m][spp], t[m][quarter])]
+
+    return [a / b if b > 0 else float("nan") for a, b in zip(sample_times("multiscale"), sample_times("bruteforce"))]
 
 
 def frame_time_ratio(result: dict) -> float:
@@ -638,7 +658,10 @@ def _compare_lines(compare_rows, budget_rows, res, budget) -> list[str]:
         "multi-scale's error (read off its error-vs-spp curve, which holds no timing; its time",
         "linear between the round's renders around that count) over multi-scale's; the median",
         "over the rounds and their range. Then the rounds' time ratio at 16 spp, multi-scale /",
-        "brute force. Compare code by these two columns.",
+        "brute force. Compare code by these two columns. The rounds also render both methods at",
+        "4 spp: a sample's own time ratio (16 spp minus 4, each method) leaves out a render's",
+        "fixed cost, tracing and launching the kernel, which at 16 spp is a sixth of a",
+        "multi-scale frame: the issue's 'multi-scale sample <= 1.5x a brute-force one'.",
         "",
         "The errors are each method's own: relMSE against the reference minus the reference's own",
         "noise (estimated from its two halves; both methods' relMSE contain it alike). Beyond brute",
@@ -650,13 +673,17 @@ def _compare_lines(compare_rows, budget_rows, res, budget) -> list[str]:
         "spp (error per sample; time per sample), and brute force at 256 spp (the second target).",
         "",
         "| scene | region | speed-up | speed-up, interleaved time (range) | uncorrected, interleaved "
-        "| frame's time / bf, interleaved (range) | multi-scale spp / relMSE / own relMSE / s "
+        "| frame's time / bf, interleaved (range) | a sample's time / bf, 16 minus 4 spp (range) "
+        "| multi-scale spp / relMSE / own relMSE / s "
         "| reference noise relMSE | brute force (equal time) spp / relMSE / s "
         "| brute force, equal spp: relMSE / s | brute force, 256 spp: relMSE |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, result in compare_rows:
         ratios = frame_time_ratios(result)
+        marginal = marginal_time_ratios(result)
+        marginal = (f"{np.median(marginal):.2f} ({min(marginal):.2f}-{max(marginal):.2f})" if marginal
+                    else "not measured")
         for g in ("near", "middle", "far"):
             r = result[g]
             at_256 = [p for p in r["curve_bruteforce"] if p["spp"] == 256]
@@ -665,7 +692,7 @@ def _compare_lines(compare_rows, budget_rows, res, budget) -> list[str]:
             bound = "> " if r["reference_limited"] else ""
             lines.append(f"| {name} | {g} | {bound}{r['speedup']:.2f}x | {bound}{fast:.2f}x ({low:.2f}-{high:.2f}) | "
                          f"{interleaved_speedup(result, g, uncorrected=True)[0]:.2f}x | "
-                         f"{np.median(ratios):.2f} ({min(ratios):.2f}-{max(ratios):.2f}) | "
+                         f"{np.median(ratios):.2f} ({min(ratios):.2f}-{max(ratios):.2f}) | {marginal} | "
                          f"{r['spp_multiscale']} / {r['relmse_multiscale']:.3g} / {r['relmse_multiscale_own']:.3g} / "
                          f"{r['seconds_multiscale']:.2f} | {r['relmse_reference']:.3g} | "
                          f"{r['spp_bruteforce']} / {r['relmse_bruteforce']:.3g} / "

@@ -6,6 +6,9 @@ piece off (all lanes fibre level, visibility off, fewer residual texels) prices 
     .venv/bin/python bench/sample_cost.py satin-plane \\
         --variant "all fibre level: --attr POINT_TEXELS=1e9 --attr FOOTPRINT_TEXELS=2e9 --attr BLEND_TEXELS_BY_ROUGHNESS=()"
 
+``--marginal`` times a sample without the render's fixed cost (a render at spp minus one at
+spp / 4), which at 16 spp is a sixth of a multi-scale frame (tracing its larger kernel).
+
 ``--region near|middle|far`` renders only the bounding box of that region's pixels (a film
 crop), so that the time per sample is the region's own rather than the whole frame's.
 """
@@ -29,6 +32,9 @@ def main(argv=None) -> int:
     parser.add_argument("--spp", type=int, default=16)
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--region", choices=("near", "middle", "far"), help="time this region's bounding box only")
+    parser.add_argument("--marginal", action="store_true",
+                        help="time per sample without a render's fixed cost (tracing the kernel, "
+                             "launching it, the film): a render at spp minus one at spp / 4, per sample")
     args = parser.parse_args(argv)
     mi = setup_mitsuba()
     from mscloth.evaluation.error_budget import LIGHTS, interleaved_rounds, lit_scene
@@ -49,6 +55,8 @@ def main(argv=None) -> int:
             scene = lit_scene(args.scene, width, height, params.pop("multiscale", True), LIGHTS["both"],
                               crop=crop, **params)
             timed_render(scene, args.spp, 1)  # compile
+            if args.marginal:
+                timed_render(scene, max(args.spp // 4, 1), 1)
         finally:
             set_class_attributes(saved)
         scenes.append((label, attrs, scene))
@@ -57,7 +65,11 @@ def main(argv=None) -> int:
         def render(r):
             saved = set_class_attributes(attrs)
             try:
-                return timed_render(scene, args.spp, 100 + r).seconds / args.spp
+                seconds = timed_render(scene, args.spp, 100 + r).seconds
+                if not args.marginal:
+                    return seconds / args.spp
+                quarter = max(args.spp // 4, 1)
+                return (seconds - timed_render(scene, quarter, 200 + r).seconds) / (args.spp - quarter)
             finally:
                 set_class_attributes(saved)
         return render
@@ -66,6 +78,7 @@ def main(argv=None) -> int:
                                  args.rounds)
     bf = np.array(seconds["brute force"])
     where = f", {args.region} region's box" if args.region else ""
+    where += ", marginal: spp minus spp / 4" if args.marginal else ""
     print(f"| {args.scene} ({args.res}{where}, {args.spp} spp) | s per spp (median) | / brute force (median, range) |")
     print("|---|---|---|")
     for label, _, _ in scenes:

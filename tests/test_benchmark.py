@@ -2,6 +2,8 @@
 import importlib.util
 from pathlib import Path
 
+import pytest
+
 # bench/benchmark.py is a script beside the package, not part of it: loaded from its file.
 _SPEC = importlib.util.spec_from_file_location(
     "bench_benchmark", Path(__file__).resolve().parents[1] / "bench" / "benchmark.py")
@@ -29,8 +31,10 @@ TIME = {"multiscale": 0.015, "bruteforce": 0.01, "ratio": 1.5, "ratios": [1.4, 1
 #: The whole frame in interleaved rounds at 16 and 64 spp: time ratios 1.5, 2, 3 at 16 spp
 #: (neither compare's 0.12 s / 0.04 s = 3 nor the region's own); brute force 0.01 s a render
 #: plus 0.000625 s a sample, so 0.04 s at the 48 spp it needs to reach multi-scale's error.
-FRAME = {"multiscale": {16: [0.03, 0.04, 0.06], 64: [0.09, 0.12, 0.18]},
-         "bruteforce": {16: [0.02, 0.02, 0.02], 64: [0.05, 0.05, 0.05]}}
+#: At 4 spp too: a sample alone (16 spp minus 4) takes multi-scale 0.015 / 0.02 / 0.03 s over
+#: 12 samples against brute force's 0.0075 s: 2 / 2.67 / 4.
+FRAME = {"multiscale": {4: [0.015, 0.02, 0.03], 16: [0.03, 0.04, 0.06], 64: [0.09, 0.12, 0.18]},
+         "bruteforce": {4: [0.0125, 0.0125, 0.0125], 16: [0.02, 0.02, 0.02], 64: [0.05, 0.05, 0.05]}}
 
 
 def scene_rows(speedup, spp_bf_curve, reference_limited=False):
@@ -62,7 +66,8 @@ def test_results_page_has_every_table_and_the_split_of_the_speed_up(tmp_path):
     # 0.03, 0.04, 0.06 s; the rounds' time ratios at 16 spp; brute force at multi-scale's spp and at 256 spp (or a note that the
     # curve stopped short).
     # Uncorrected (the reference's noise left in): brute force needs 16 spp, 0.02 s.
-    assert ("| plane | near | 0.40x | 1.00x (0.67-1.33) | 0.50x | 2.00 (1.50-3.00) | 16 / 0.004 / 0.0035 / 0.12 "
+    assert ("| plane | near | 0.40x | 1.00x (0.67-1.33) | 0.50x | 2.00 (1.50-3.00) | 2.67 (2.00-4.00) "
+            "| 16 / 0.004 / 0.0035 / 0.12 "
             "| 0.0005 | 64 / 0.002 / 0.14 | 0.006 / 0.04 | 0.000391 |") in text
     # Multi-scale's error within the reference's noise: lower bounds.
     assert "| sphere | far | > 0.30x | > 1.00x (0.67-1.33) |" in text and "not reached |" in text
@@ -107,3 +112,17 @@ def test_scene_and_comparison_options_are_checked(capsys):
         with pytest.raises(SystemExit) as exit_info:
             benchmark.main(bad)
         assert exit_info.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_frame_counts_time_both_methods_at_a_quarter_of_the_spp_too():
+    # Brute force in steps of 4 up to its curve's last count (powers of two multijitter keeps),
+    # both methods also at 4 spp, whose difference to 16 prices a sample without the render's
+    # fixed cost; none at a count with no whole quarter.
+    counts = benchmark.frame_counts(scene_rows(1.0, (1, 16, 256)))
+    assert counts == {"multiscale": (4, 16), "bruteforce": (4, 16, 64, 256)}
+    assert benchmark.marginal_time_ratios(scene_rows(1.0, (1, 16))) == pytest.approx([2.0, 0.02 / 0.0075, 4.0])
+    odd = scene_rows(1.0, (1, 16))
+    for g in ("near", "middle", "far"):
+        odd[g] = dict(odd[g], spp_multiscale=6)
+    assert benchmark.frame_counts(odd)["multiscale"] == (6,)
+    assert benchmark.marginal_time_ratios(odd) is None

@@ -20,7 +20,7 @@ import mitsuba as mi
 from ..scattering import sggx, spongecake
 from .fibre_bsdf import FibreBSDF, edges_in_texels
 from ..lanes import logical_not, pick
-from .lobe_mixture import lobe_weights
+from .lobe_mixture import SpecularHalfVectors, lobe_weights
 from .lobes import DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN, SPECULAR_REFLECTION, SPECULAR_TRANSMISSION
 from .sat_queries import RectQuery, RectUnion, hemisphere_bins, round_box
 from ..pixel_filter import quadratic_bspline_quantile
@@ -707,6 +707,12 @@ class FootprintEstimator:
             bins, weights = hemisphere_bins(h_table, fd.dr)
             centres = fd.bin_centres_of(bins)
             d_yarn = fd.d_integral(st.q, bins, weights) * st.inv_area  # mean over P of D I
+            # What every texel shares, computed once outside their loop: the squared
+            # lengths of the directions, and the specular density's half vectors.
+            h2, wi2, wo2 = dr.squared_norm(h), dr.dot(wi, wi), dr.dot(wo, wo)
+            centre_norms = [dr.squared_norm(c) for c in centres]
+            half = SpecularHalfVectors.of(wi, wo)
+            folded2 = dr.squared_norm(half.folded)
 
             # f_rs per unit D: G of the footprint's mean SGGX matrix (g_bar), and of each
             # residual texel's own tangent (g_k). The residual corrects mean(D) g_bar
@@ -766,18 +772,21 @@ class FootprintEstimator:
                 if diffuse:
                     yarn_v = t_.yarn * (v - vbar) * (1.0 / n)
             if specular:
-                d = sggx.ndf(h, t_.tangent, roughness) * t_.yarn
+                t = t_.tangent
+                d_h = sggx.ndf(h, t, roughness, h2)  # D is even: also the density's D(h)
+                d = d_h * t_.yarn
                 # The same texel's D as the tables bin it (its tangent in the tables'
                 # frame): the control variate that removes the bins' bias from the base.
-                d_bin = fd.binned_ndf(centres, weights, _table_tangent(fr, t_.tangent), roughness) * t_.yarn
-                g = g_of(sggx.projected_area(wi, t_.tangent, roughness),
-                         sggx.projected_area(wo, t_.tangent, roughness))
+                d_bin = fd.binned_ndf(centres, weights, _table_tangent(fr, t), roughness, centre_norms) * t_.yarn
+                sigma_i = sggx.projected_area(wi, t, roughness, wi2)
+                g = g_of(sigma_i, sggx.projected_area(wo, t, roughness, wo2))
                 if fibre.use_visibility:
                     vbar_spec = vbar if w_bar is None else dr.select(w_bar[0], vbar, w_bar[1])
                     residual = d * v * g - d_bin * vbar_spec * g_bar
                 else:
                     residual = d * g - d_bin * g_bar
-                pdf_spec = samplers.specular_pdf(roughness, wi, wo, t_.tangent, fold)
+                pdf_spec = samplers.specular_pdf_from(half, wo, fold, d_h, sggx.ndf(half.folded, t, roughness, folded2),
+                                                      sigma_i)
             return residual, yarn_v, pdf_spec
 
         residual, yarn_v, pdf_spec = self._texel_sums(texels, (vbar_p, v_p), texel_terms, 3,

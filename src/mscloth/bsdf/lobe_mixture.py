@@ -13,7 +13,7 @@ from typing import Any
 import drjit as dr
 import mitsuba as mi
 
-from ..scattering import sheen, spongecake
+from ..scattering import sggx, sheen, spongecake
 from ..lanes import logical_not
 from .lobes import DIFFUSE_REFLECTION, DIFFUSE_TRANSMISSION, GAP, SHEEN, SPECULAR_REFLECTION, SPECULAR_TRANSMISSION
 from .shading_state import LobeAlbedos, max_channel
@@ -57,6 +57,24 @@ def lobe_weights(k: LobeAlbedos, wi, yarn, ts, scattered, enabled, calibration) 
 def _mirrored(w):
     """``w`` mirrored through the surface plane."""
     return mi.Vector3f(w.x, w.y, -w.z)
+
+
+@dataclass
+class SpecularHalfVectors:
+    """The half vectors of the specular density at (wi, wo): of wo, and of wo mirrored
+    through the surface (the folded samples), where each density is defined
+    (:func:`.spongecake.specular_half_vector`)."""
+
+    direct: Any
+    valid: Any
+    folded: Any
+    valid_folded: Any
+
+    @staticmethod
+    def of(wi, wo) -> SpecularHalfVectors:
+        h, valid = spongecake.specular_half_vector(wi, wo)
+        h_folded, valid_folded = spongecake.specular_half_vector(wi, _mirrored(wo))
+        return SpecularHalfVectors(h, valid, h_folded, valid_folded)
 
 
 @dataclass
@@ -106,8 +124,18 @@ class LobeSamplers:
     def specular_pdf(roughness, wi, wo, tangent, fold):
         """Density of sampling the specular lobe on ``tangent``'s flakes, a share ``fold``
         of its samples below the surface mirrored above; validity not masked."""
-        direct = spongecake.pdf_specular(wi, wo, tangent, roughness)
-        folded = spongecake.pdf_specular(wi, _mirrored(wo), tangent, roughness)
+        hv = SpecularHalfVectors.of(wi, wo)
+        return LobeSamplers.specular_pdf_from(hv, wo, fold, sggx.ndf(hv.direct, tangent, roughness),
+                                              sggx.ndf(hv.folded, tangent, roughness),
+                                              sggx.projected_area(wi, tangent, roughness))
+
+    @staticmethod
+    def specular_pdf_from(hv: SpecularHalfVectors, wo, fold, d_direct, d_folded, sigma_i):
+        """:meth:`specular_pdf` from a tangent's D at ``hv``'s two half vectors and its
+        sigma(wi): the form for many tangents at one pair of directions, which computes
+        the half vectors once and shares D(h) and sigma(wi) with the evaluation."""
+        direct = spongecake.pdf_specular_from(d_direct, sigma_i, hv.valid)
+        folded = spongecake.pdf_specular_from(d_folded, sigma_i, hv.valid_folded)
         return dr.select(wo.z > 0.0, direct + fold * folded, (1.0 - fold) * direct)
 
     def pdf(self, roughness, wi, wo, probs, tangents, enabled, fold, specular_mean=None):

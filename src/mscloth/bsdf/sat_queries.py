@@ -103,21 +103,33 @@ class ResidualSATs:
     that tables of different tile sizes trace the same code.
     """
 
-    def __init__(self, sat: np.ndarray, mean: np.ndarray):
+    def __init__(self, sat: np.ndarray, mean: np.ndarray, channel_major: bool = False):
         sat = np.asarray(sat, dtype=np.float32)
         if sat.ndim == 2:
             sat = sat[None]
         self.channels, rows, cols = sat.shape
         self.H, self.W = rows - 1, cols - 1
         self.width, self.height = Extent(self.W), Extent(self.H)
-        self.row_stride = opaque(mi.UInt32, (self.W + 1) * self.channels)
-        self.data = flat_array(np.moveaxis(sat, 0, -1))
+        self.channel_major = channel_major
+        C = self.channels
+        if channel_major:
+            # data[c * (H + 1) * (W + 1) + y * (W + 1) + x]: one channel's plane whole.
+            self.data = flat_array(sat)
+            self.last_col = flat_array(sat[:, :, self.W])
+            self.last_row = flat_array(sat[:, self.H, :])
+            strides = ((self.H + 1) * (self.W + 1), 1, self.W + 1, self.H + 1, 1, self.W + 1, 1)
+        else:
+            self.data = flat_array(np.moveaxis(sat, 0, -1))
+            # The last column (x = W) and last row (y = H) alone: the periodic decomposition
+            # reads them at every corner, and 1-D interpolation needs 2 reads instead of 4.
+            self.last_col = flat_array(np.moveaxis(sat[:, :, self.W], 0, -1))
+            self.last_row = flat_array(np.moveaxis(sat[:, self.H, :], 0, -1))
+            strides = (1, C, (self.W + 1) * C, 1, C, 1, C)
+        # Index strides: data (channel, x, y); last column (channel, y); last row (channel, x).
+        (self.step_c, self.step_x, self.row_stride, self.col_c, self.col_y,
+         self.row_c, self.row_x) = (opaque(mi.UInt32, v) for v in strides)
         self.mean = flat_array(np.asarray(mean, dtype=np.float64))
         self.total = flat_array(sat[:, self.H, self.W])  # ~0 by construction
-        # The last column (x = W) and last row (y = H) alone: the periodic decomposition
-        # reads them at every corner, and 1-D interpolation needs 2 reads instead of 4.
-        self.last_col = flat_array(np.moveaxis(sat[:, :, self.W], 0, -1))
-        self.last_row = flat_array(np.moveaxis(sat[:, self.H, :], 0, -1))
 
     def _corner(self, x, y, on_grid=False, home_x=False, home_y=False):
         """``home_x`` / ``home_y``: x (y) lies in [0, W] ([0, H]), no whole tiles along it
@@ -180,7 +192,7 @@ class ResidualSATs:
         if isinstance(q, RectUnion):
             return q.sum_over(lambda part: self.integrals(part, first, n))
         C = self.channels
-        if not (n % 4 == 0 and first % 4 == 0 and C % 4 == 0):
+        if not (n % 4 == 0 and first % 4 == 0 and C % 4 == 0) or self.channel_major:
             return [self.integral(q, first + j) for j in range(n)]
         totals = gather_block(self.total, mi.UInt32(first), n)
         means = gather_block(self.mean, mi.UInt32(first), n)
@@ -230,8 +242,7 @@ class ResidualSATs:
         :class:`RectUnion` of such)."""
         if isinstance(q, RectUnion):
             return q.sum_over(lambda part: [self.integral(part, channel)])[0]
-        C = self.channels
-        row_stride = self.row_stride
+        row_stride, step_x = self.row_stride, self.step_x
         channel = mi.UInt32(channel)
         total = gather(self.total, channel)
 
@@ -239,16 +250,16 @@ class ResidualSATs:
             values = []
             for _, c in q.corners:
                 has_col, has_row = self._edge_terms(c)
-                col = c.iy * C + channel
-                row = c.ix * C + channel
+                col = c.iy * self.col_y + channel * self.col_c
+                row = c.ix * self.row_x + channel * self.row_c
                 if q.on_grid:  # fx = fy = 0 up to rounding: the corner's own values
                     values += [gather(self.last_col, col, c.use_col)] if has_col else []
                     values += [gather(self.last_row, row, c.use_row)] if has_row else []
                 else:
                     values += [dr.lerp(gather(self.last_col, col, c.use_col),
-                                       gather(self.last_col, col + C, c.use_col), c.fy)] if has_col else []
+                                       gather(self.last_col, col + self.col_y, c.use_col), c.fy)] if has_col else []
                     values += [dr.lerp(gather(self.last_row, row, c.use_row),
-                                       gather(self.last_row, row + C, c.use_row), c.fx)] if has_row else []
+                                       gather(self.last_row, row + self.row_x, c.use_row), c.fx)] if has_row else []
             return values
 
         edges = iter(q.edge_reads(read_edges, 4))
@@ -257,14 +268,14 @@ class ResidualSATs:
             has_col, has_row = self._edge_terms(c)
             col = next(edges) if has_col else 0.0
             row = next(edges) if has_row else 0.0
-            i00 = c.cell * C + channel
+            i00 = c.ix * step_x + c.iy * row_stride + channel * self.step_c
             if q.on_grid:
                 inner = gather(self.data, i00)
             else:
                 v00 = gather(self.data, i00)
-                v01 = gather(self.data, i00 + C)
+                v01 = gather(self.data, i00 + step_x)
                 v10 = gather(self.data, i00 + row_stride)
-                v11 = gather(self.data, i00 + row_stride + C)
+                v11 = gather(self.data, i00 + row_stride + step_x)
                 inner = dr.lerp(dr.lerp(v00, v01, c.fx), dr.lerp(v10, v11, c.fx), c.fy)
             residual += sign * self._periodic(c, total, col, row, inner)
         return residual + gather(self.mean, channel) * q.area

@@ -18,25 +18,26 @@ import mitsuba as mi
 from .fibre_ndf import fibre_ndf_of_cosines, mean_matrix_sigma
 
 
-def quadratic_form(a, b, t, alpha):
-    """a^T S b without forming S: a.b - (1 - alpha^2)(a.t)(b.t)."""
-    return dr.dot(a, b) - (1.0 - alpha * alpha) * dr.dot(a, t) * dr.dot(b, t)
+def quadratic_form(a, b, t, alpha, ab=None):
+    """a^T S b without forming S: a.b - (1 - alpha^2)(a.t)(b.t); ``ab``: a.b if known."""
+    return (dr.dot(a, b) if ab is None else ab) - (1.0 - alpha * alpha) * dr.dot(a, t) * dr.dot(b, t)
 
 
-def projected_area(w, t, alpha):
-    """sigma(w) = sqrt(w^T S w), the flakes' projected area seen from w."""
-    return dr.safe_sqrt(quadratic_form(w, w, t, alpha))
+def projected_area(w, t, alpha, w2=None):
+    """sigma(w) = sqrt(w^T S w), the flakes' projected area seen from w (``w2``: |w|^2
+    if known, e.g. computed once for many tangents)."""
+    return dr.safe_sqrt(quadratic_form(w, w, t, alpha, w2))
 
 
-def ndf(m, t, alpha):
+def ndf(m, t, alpha, m2=None):
     """D(m) = |det S|^(3/2) / (pi (m^T adj(S) m)^2), the inverse-free form.
 
     det S = alpha^2 and adj(S) = t t^T + alpha^2 (I - t t^T), so no division
     by alpha appears. Not normalised to 1 over the sphere; what holds is
-    integral max(0, w.m) D(m) dm = sigma(w).
+    integral max(0, w.m) D(m) dm = sigma(w). ``m2``: |m|^2 if known.
     """
     mt = dr.dot(m, t)
-    return fibre_ndf_of_cosines(mt * mt, dr.squared_norm(m), alpha)
+    return fibre_ndf_of_cosines(mt * mt, dr.squared_norm(m) if m2 is None else m2, alpha)
 
 
 def mean_sigma(moments, w, alpha):

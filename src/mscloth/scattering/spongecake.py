@@ -139,8 +139,19 @@ def sample_specular(wi, t, alpha, sample):
 
 def pdf_specular(wi, wo, t, alpha):
     """Solid-angle density of :func:`sample_specular`."""
-    h = dr.normalize(wi + wo)
+    h, valid = specular_half_vector(wi, wo)
+    return pdf_specular_from(sggx.ndf(h, t, alpha), sggx.projected_area(wi, t, alpha), valid)
+
+
+def specular_half_vector(wi, wo):
+    """(h, valid) of :func:`pdf_specular`: the half vector, and where the density is
+    defined (then sigma(wi) > 0)."""
     finite = dr.squared_norm(wi + wo) > 1e-12
-    valid = finite & (wi.z > COS_EPSILON)  # then sigma(wi) > 0 (guarded: scalar floats raise on /0)
-    pdf = sggx.ndf(h, t, alpha) / dr.select(valid, 4.0 * sggx.projected_area(wi, t, alpha), 1.0)
-    return dr.select(valid, pdf, 0.0)
+    return dr.normalize(wi + wo), finite & (wi.z > COS_EPSILON)
+
+
+def pdf_specular_from(d, sigma_i, valid):
+    """:func:`pdf_specular` given D(h) and sigma(wi), and its ``valid`` from
+    :func:`specular_half_vector` (the form for many tangents at one pair of directions).
+    Guarded: scalar floats raise on /0."""
+    return dr.select(valid, d / dr.select(valid, 4.0 * sigma_i, 1.0), 0.0)
