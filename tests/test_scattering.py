@@ -186,6 +186,51 @@ def test_sggx_isotropic_limit():
     np.testing.assert_allclose(s, 1.0, rtol=1e-6)
 
 
+@pytest.mark.parametrize("alpha", [0.01, 0.05, 0.12, 0.4])
+@pytest.mark.parametrize("terms", [3, 4])
+def test_ndf_mixture_is_the_weighted_sum_of_ndfs(alpha, terms):
+    """The bilinear mix of direction bins' D with a division per pair of terms (the residual
+    texels' control variate) equals the sum of the single NDFs: at shiny roughness, where
+    D spans orders of magnitude between bins, for peaks (m along the fibre's normal plane)
+    and tails, non-unit m, and an odd count (its last term alone)."""
+    rng = np.random.default_rng(23)
+    n = 4000
+    t = random_unit(rng, n)
+    ms = [random_unit(rng, n) * rng.uniform(0.9, 1.1, (n, 1)) for _ in range(terms)]
+    # A quarter of the lanes put the first m in the fibre's normal plane: D's peak.
+    peak = np.cross(t, random_unit(rng, n))
+    ms[0][: n // 4] = unit(peak[: n // 4])
+    w = rng.random((terms, n))
+    w /= w.sum(axis=0)
+    got = npf(sggx.ndf_mixture([vec(m) for m in ms], vec(t), alpha, [mi.Float(x) for x in w]))
+    want = sum(w[j] * npf(sggx.ndf(vec(ms[j]), vec(t), alpha)) for j in range(terms))
+    np.testing.assert_allclose(got, want, rtol=2e-6 * terms, atol=0.0)
+    assert np.isfinite(got).all() and want.max() / want.min() > (1e3 if alpha < 0.15 else 10.0)
+
+
+@pytest.mark.parametrize("alpha", [0.05, 0.3])
+def test_eval_specular_at_shared_directions_matches_eval_specular_from(alpha):
+    """Many tangents at one direction pair (a footprint's residual texels) evaluated from the
+    pair's shared cosines give :func:`spongecake.eval_specular_from`'s values: reflection and
+    transmission, grazing and invalid (wo at the horizon) directions included."""
+    rng = np.random.default_rng(29)
+    n = 3000
+    wi = random_unit(rng, n)
+    wi[:, 2] = np.abs(wi[:, 2])
+    wo = random_unit(rng, n)
+    wo[:10, 2] = 0.0  # at the horizon: zero both ways
+    t = random_unit(rng, n)
+    wi_, wo_, t_ = vec(wi), vec(wo), vec(t)
+    sigma_i = sggx.projected_area(wi_, t_, alpha)
+    sigma_o = sggx.projected_area(wo_, t_, alpha)
+    d = sggx.ndf(dr.normalize(wi_ + wo_), t_, alpha)
+    dirs = spongecake.SpecularDirections.of(wi_, wo_)
+    got = npf(spongecake.eval_specular_at(d, sigma_i, sigma_o, dirs, 2.0))
+    want = npf(spongecake.eval_specular_from(d, sigma_i, sigma_o, wi_, wo_, 2.0)[0])
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=0.0)
+    assert (got[:10] == 0.0).all() and (got > 0.0).sum() > n // 2
+
+
 # --------------------------------------------------------------------------- 2. chi^2 of samplers
 
 

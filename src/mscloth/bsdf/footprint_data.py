@@ -138,10 +138,7 @@ class FootprintData:
         as their control variate: the footprint estimate is then free of the bins' bias
         whatever their size, at the price of more variance where the bins are coarse for
         the lobe. ``norms``: the centres' squared lengths if known (once for every texel)."""
-        total = mi.Float(0.0)
-        for j, (c, w) in enumerate(zip(centres, weights)):
-            total += w * sggx.ndf(c, tangent, alpha, None if norms is None else norms[j])
-        return total
+        return sggx.ndf_mixture(centres, tangent, alpha, weights, norms)
 
     def cluster_d_means(self, bins, weights):
         """Each visibility cluster's mean of D(h, t) I over the tile, bilinear between the

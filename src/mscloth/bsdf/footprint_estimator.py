@@ -718,8 +718,10 @@ class FootprintEstimator:
             # residual texel's own tangent (g_k). The residual corrects mean(D) g_bar
             # towards mean(D g), which differ where D and the tangent correlate (grazing
             # highlights: 10-17% low without it).
+            dirs = spongecake.SpecularDirections.of(wi, wo)  # once for every texel
+
             def g_of(sigma_i, sigma_o):
-                return spongecake.eval_specular_from(1.0, sigma_i, sigma_o, wi, wo, thickness)[0]
+                return spongecake.eval_specular_at(1.0, sigma_i, sigma_o, dirs, thickness)
 
             g_bar = g_of(sggx.mean_sigma(st.moments, wi, roughness), sggx.mean_sigma(st.moments, wo, roughness))
             # The base (mean D over the footprint times a visibility) and the visibility

@@ -134,8 +134,10 @@ class LobeSamplers:
         """:meth:`specular_pdf` from a tangent's D at ``hv``'s two half vectors and its
         sigma(wi): the form for many tangents at one pair of directions, which computes
         the half vectors once and shares D(h) and sigma(wi) with the evaluation."""
-        direct = spongecake.pdf_specular_from(d_direct, sigma_i, hv.valid)
-        folded = spongecake.pdf_specular_from(d_folded, sigma_i, hv.valid_folded)
+        # One division for both densities (their denominator, 4 sigma(wi), is the same).
+        inv = spongecake.pdf_specular_from(1.0, sigma_i, hv.valid | hv.valid_folded)
+        direct = dr.select(hv.valid, d_direct * inv, 0.0)
+        folded = dr.select(hv.valid_folded, d_folded * inv, 0.0)
         return dr.select(wo.z > 0.0, direct + fold * folded, (1.0 - fold) * direct)
 
     def pdf(self, roughness, wi, wo, probs, tangents, enabled, fold, specular_mean=None):

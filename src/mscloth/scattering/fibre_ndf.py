@@ -20,6 +20,21 @@ def fibre_ndf_of_cosines(mt2, m2, alpha):
     return alpha * alpha * alpha / (math.pi * q * q)
 
 
+def fibre_ndf_mixture(mt2s, m2s, weights, alpha):
+    """sum_j weights[j] fibre_ndf_of_cosines(mt2s[j], m2s[j], alpha) (the bilinear mix of
+    the direction bins' D) with a division per pair of terms instead of one per term:
+    a / p + b / q = (a q + b p) / (p q), p and q the squared denominators, each at least
+    alpha^4 |m|^4, so a pair's product stays a normal float32 down to alpha ~ 1e-4."""
+    a2 = alpha * alpha
+    q2 = [(mt2 + a2 * (m2 - mt2)) ** 2 for mt2, m2 in zip(mt2s, m2s)]
+    total = 0.0
+    for j in range(0, len(q2) - 1, 2):
+        total = total + (weights[j] * q2[j + 1] + weights[j + 1] * q2[j]) / (q2[j] * q2[j + 1])
+    if len(q2) % 2:
+        total = total + weights[-1] / q2[-1]
+    return alpha * a2 / math.pi * total
+
+
 def fibre_ndf_of_unit_cosine_inplace(mt, alpha, divide):
     """:func:`fibre_ndf_of_cosines` for unit m (|m|^2 = 1) from the cosine mt = m.t,
     computed in place in ``mt`` (an array that supports in-place arithmetic, e.g. NumPy's)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from .fibre_ndf import fibre_ndf_of_cosines, mean_matrix_sigma
+from .fibre_ndf import fibre_ndf_mixture, fibre_ndf_of_cosines, mean_matrix_sigma
 
 
 def quadratic_form(a, b, t, alpha, ab=None):
@@ -38,6 +38,13 @@ def ndf(m, t, alpha, m2=None):
     """
     mt = dr.dot(m, t)
     return fibre_ndf_of_cosines(mt * mt, dr.squared_norm(m) if m2 is None else m2, alpha)
+
+
+def ndf_mixture(ms, t, alpha, weights, m2s=None):
+    """sum_j weights[j] D(ms[j]) for one fibre tangent ``t``, with a division per pair of
+    terms (:func:`.fibre_ndf.fibre_ndf_mixture`); ``m2s``: the |m_j|^2 if known."""
+    mt2s = [dr.square(dr.dot(m, t)) for m in ms]
+    return fibre_ndf_mixture(mt2s, [dr.squared_norm(m) for m in ms] if m2s is None else m2s, weights, alpha)
 
 
 def mean_sigma(moments, w, alpha):

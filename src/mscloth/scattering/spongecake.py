@@ -15,6 +15,9 @@ convention) and exclude albedo.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
 import drjit as dr
 
 from . import sggx
@@ -102,28 +105,55 @@ def eval_specular_from(d, sigma_i, sigma_o, wi, wo, thickness):
     return _eval_specular(d, sigma_i, sigma_o, wi, wo, thickness)[:2]
 
 
-def _eval_specular(d, sigma_i, sigma_o, wi, wo, thickness):
-    """(value, is_reflection, unscattered both ways) of :func:`eval_specular_from`."""
-    cos_i = wi.z
-    cos_o = wo.z
-    valid = (cos_i > COS_EPSILON) & (dr.abs(cos_o) > COS_EPSILON)
-    reflect = cos_o > 0.0
-    abs_cos_o = dr.abs(cos_o)
+@dataclass
+class SpecularDirections:
+    """What the specular evaluation at one pair (wi, wo) shares between flake
+    distributions (:func:`eval_specular_at`; a footprint's residual texels evaluate
+    many): where it is defined, the side wo leaves on, and the cosines, with their
+    inverses (one division per pair instead of three per tangent)."""
 
+    valid: Any
+    #: wi == -wo makes h undefined; that direction has measure zero.
+    finite: Any
+    reflect: Any
+    cos_i: Any
+    abs_cos_o: Any
+    inv_cos_i: Any
+    inv_cos_o: Any
+
+    @staticmethod
+    def of(wi, wo) -> SpecularDirections:
+        cos_i = wi.z
+        abs_cos_o = dr.abs(wo.z)
+        valid = (cos_i > COS_EPSILON) & (abs_cos_o > COS_EPSILON)
+        return SpecularDirections(valid=valid, finite=dr.squared_norm(wi + wo) > 1e-12, reflect=wo.z > 0.0,
+                                  cos_i=cos_i, abs_cos_o=abs_cos_o,
+                                  inv_cos_i=1.0 / dr.select(valid, cos_i, 1.0),
+                                  inv_cos_o=1.0 / dr.select(valid, abs_cos_o, 1.0))
+
+
+def eval_specular_at(d, sigma_i, sigma_o, dirs: SpecularDirections, thickness):
+    """:func:`eval_specular_from` at directions ``dirs`` (:meth:`SpecularDirections.of`)."""
+    return _eval_specular_at(d, sigma_i, sigma_o, dirs, thickness)[0]
+
+
+def _eval_specular_at(d, sigma_i, sigma_o, dirs: SpecularDirections, thickness):
+    """(value, unscattered both ways) of :func:`eval_specular_at`."""
     # Reflection: G_r / cos_i = (1 - e^{-T s}) |cos o| / (sigma_i |cos o| + sigma_o cos i),
     # a form that stays finite at grazing angles.
-    lam_i = sigma_i / dr.select(valid, cos_i, 1.0)
-    lam_o = sigma_o / dr.select(valid, abs_cos_o, 1.0)
-    unscattered, g_t = _attenuations(lam_i, lam_o, thickness)
+    unscattered, g_t = _attenuations(sigma_i * dirs.inv_cos_i, sigma_o * dirs.inv_cos_o, thickness)
     # (The denominator is > 0 where valid; guarded elsewhere, where a zero wo makes it 0.)
-    g_r_over_cos_i = (1.0 - unscattered) * abs_cos_o / dr.select(valid, sigma_i * abs_cos_o + sigma_o * cos_i, 1.0)
-    g_t_over_cos_i = g_t / dr.select(valid, cos_i, 1.0)
+    g_r_over_cos_i = ((1.0 - unscattered) * dirs.abs_cos_o
+                      / dr.select(dirs.valid, sigma_i * dirs.abs_cos_o + sigma_o * dirs.cos_i, 1.0))
+    g_over_cos_i = dr.select(dirs.reflect, g_r_over_cos_i, g_t * dirs.inv_cos_i)
+    return dr.select(dirs.valid & dirs.finite, 0.25 * d * g_over_cos_i, 0.0), unscattered
 
-    g_over_cos_i = dr.select(reflect, g_r_over_cos_i, g_t_over_cos_i)
-    # wi == -wo makes h undefined; that direction has measure zero.
-    finite = dr.squared_norm(wi + wo) > 1e-12
-    value = dr.select(valid & finite, 0.25 * d * g_over_cos_i, 0.0)
-    return value, reflect, unscattered
+
+def _eval_specular(d, sigma_i, sigma_o, wi, wo, thickness):
+    """(value, is_reflection, unscattered both ways) of :func:`eval_specular_from`."""
+    dirs = SpecularDirections.of(wi, wo)
+    value, unscattered = _eval_specular_at(d, sigma_i, sigma_o, dirs, thickness)
+    return value, dirs.reflect, unscattered
 
 
 def sample_specular(wi, t, alpha, sample):
