@@ -94,10 +94,13 @@ class _Corner:
 class ResidualSATs:
     """``C`` residual SATs of one tile in Dr.Jit memory, queried per lane.
 
-    Layout: channel-minor, ``data[(y * (W + 1) + x) * C + c]``. The channels of one texel
-    corner share cache lines, so the direction bins (or the gap/moment/cluster channels)
-    that one footprint reads at a corner cost a few cache misses instead of one per
-    channel: footprint shading is bound by these misses, not by arithmetic.
+    Layout: channel-minor, ``data[(y * (W + 1) + x) * C + c]``: the channels of one texel
+    corner share cache lines, so the gap/moment/cluster channels (or a rank-K table's
+    coefficients) that one footprint reads at a corner, in packets of four, cost a few
+    cache misses instead of one per channel. ``channel_major``: one channel's plane whole,
+    ``data[c * (H + 1) * (W + 1) + y * (W + 1) + x]``, for the full directional table,
+    of which a footprint reads four bins per corner, the same four across a region under
+    one sun (docs/decisions.md, "The full directional SAT by planes").
 
     Traced code reads the tile's size as opaque values (:class:`.jit_arrays.Extent`), so
     that tables of different tile sizes trace the same code.
