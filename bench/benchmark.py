@@ -341,8 +341,14 @@ def frame_counts(result: dict) -> dict:
         n *= 4
     # Both at a quarter of multi-scale's spp too: the difference prices a sample without
     # the render's fixed cost (:func:`marginal_time_ratios`).
-    quarter = (spp // 4,) if spp % 4 == 0 else ()
+    quarter = () if quarter_spp(spp) is None else (quarter_spp(spp),)
     return {"multiscale": quarter + (spp,), "bruteforce": quarter + tuple(counts)}
+
+
+def quarter_spp(spp: int) -> int | None:
+    """The count :func:`frame_counts` also times (a quarter of ``spp``), None where ``spp``
+    has no whole quarter."""
+    return None if spp % 4 else spp // 4
 
 
 def frame_time_ratios(result: dict) -> list[float]:
@@ -360,8 +366,8 @@ def marginal_time_ratios(result: dict) -> list[float] | None:
     takes longer to trace). None where the rounds hold no quarter count."""
     t = result["frame_time"]
     spp = result["near"]["spp_multiscale"]
-    quarter = spp // 4
-    if spp % 4 or any(quarter not in t[m] or spp not in t[m] for m in ("multiscale", "bruteforce")):
+    quarter = quarter_spp(spp)
+    if quarter is None or any(quarter not in t[m] or spp not in t[m] for m in ("multiscale", "bruteforce")):
         return None
 
     def sample_times(m):

@@ -59,9 +59,9 @@ def parse_settings(items) -> dict:
 def attribute_owner(name: str):
     """The class whose attribute ``name`` an experiment sets: the footprint estimator's
     (its tuning constants, e.g. MAX_PROBES, RESIDUAL_GRID, and ``shading_hash``) if it has
-    one, else the lobe samplers' (FOLD_FLAKES), else the shading's (LOOP_DIRECTIONS), else the uploaded tables' (CHANNEL_MAJOR), else
-    the ``clothpath`` module's (DEFAULT_UV_FILTER), else the ``cloth`` BSDF class of the
-    active variant."""
+    one, else the lobe samplers' (FOLD_FLAKES), else the shading's (LOOP_DIRECTIONS), else
+    the uploaded tables' (CHANNEL_MAJOR), else the ``clothpath`` module's
+    (DEFAULT_UV_FILTER), else the ``cloth`` BSDF class of the active variant."""
     from mscloth.bsdf.cloth_shading import ClothShading
     from mscloth.bsdf.footprint_data import FootprintData
     from mscloth.bsdf.footprint_estimator import FootprintEstimator

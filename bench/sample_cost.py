@@ -36,11 +36,14 @@ def main(argv=None) -> int:
                         help="time per sample without a render's fixed cost (tracing the kernel, "
                              "launching it, the film): a render at spp minus one at spp / 4, per sample")
     args = parser.parse_args(argv)
+    if args.marginal and args.spp < 2:
+        parser.error("--marginal needs --spp 2 or more (it subtracts a render at spp / 4)")
     mi = setup_mitsuba()
     from mscloth.evaluation.error_budget import LIGHTS, interleaved_rounds, lit_scene
     from mscloth.evaluation.renders import timed_render
 
     width, height = (int(v) for v in args.res.split("x"))
+    quarter = max(args.spp // 4, 1)  # --marginal: the render subtracted
     crop = None
     if args.region:
         from mscloth.evaluation.error_budget import region_crops
@@ -56,7 +59,7 @@ def main(argv=None) -> int:
                               crop=crop, **params)
             timed_render(scene, args.spp, 1)  # compile
             if args.marginal:
-                timed_render(scene, max(args.spp // 4, 1), 1)
+                timed_render(scene, quarter, 1)
         finally:
             set_class_attributes(saved)
         scenes.append((label, attrs, scene))
@@ -68,7 +71,6 @@ def main(argv=None) -> int:
                 seconds = timed_render(scene, args.spp, 100 + r).seconds
                 if not args.marginal:
                     return seconds / args.spp
-                quarter = max(args.spp // 4, 1)
                 return (seconds - timed_render(scene, quarter, 200 + r).seconds) / (args.spp - quarter)
             finally:
                 set_class_attributes(saved)

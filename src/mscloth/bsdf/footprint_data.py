@@ -63,8 +63,12 @@ class FootprintData:
         tile = getattr(tables, "d_cluster_tile", None)
         self.d_cluster_tile = flat_array(tile) if with_sats and tile is not None else None
         if with_sats:
-            full = getattr(tables, "d_basis", None) is None
-            self.d_sat = ResidualSATs(tables.d_sat, tables.d_mean, channel_major=full and self.CHANNEL_MAJOR)
+            # Rank-K compression: K coefficient channels and a (bins x K) basis.
+            basis = getattr(tables, "d_basis", None)
+            self.d_rank = 0 if basis is None else int(basis.shape[1])
+            if self.d_rank:
+                self.d_basis = flat_array(basis)
+            self.d_sat = ResidualSATs(tables.d_sat, tables.d_mean, channel_major=not self.d_rank and self.CHANNEL_MAJOR)
             # The bins' centre directions (x, y, z, 0): one packet read each, for the binned
             # D of a single texel (the control variate of the residual texels).
             centres = bin_centres(self.dr)
@@ -79,11 +83,6 @@ class FootprintData:
             pad = -len(sats) % 4
             self.scalar_sats = ResidualSATs(np.concatenate([sats, np.zeros((pad,) + sats.shape[1:], sats.dtype)]),
                                             np.concatenate([means, np.zeros(pad)]))
-            # Rank-K compression: K coefficient channels and a (bins x K) basis.
-            basis = getattr(tables, "d_basis", None)
-            self.d_rank = 0 if basis is None else int(basis.shape[1])
-            if self.d_rank:
-                self.d_basis = flat_array(basis)
             if self.per_cluster:
                 k, b = self.clusters, self.d_sat.channels
                 self.d_sat_cluster = ResidualSATs(np.asarray(tables.d_sat_cluster).reshape(k * b, self.H + 1, self.W + 1),
