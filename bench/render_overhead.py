@@ -25,7 +25,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     setup_mitsuba()
     from mscloth.evaluation.error_budget import LIGHTS, lit_scene
-    from mscloth.evaluation.renders import timed_render
+    from mscloth.evaluation.renders import timed_render, with_scene_alone
 
     width, height = (int(v) for v in args.res.split("x"))
     spps = [int(v) for v in args.spps.split(",")]
@@ -33,17 +33,23 @@ def main(argv=None) -> int:
           f"c / (c + 16 tau) | tau / tau brute force |")
     print("|---|---|---|---|---|---|")
     for name in args.scenes:
-        scenes = {m: lit_scene(name, width, height, m == "multi-scale", LIGHTS["both"])
-                  for m in ("multi-scale", "brute force")}
-        for scene in scenes.values():
-            timed_render(scene, spps[0], 1)  # compile
-        seconds = {m: {s: [] for s in spps} for m in scenes}
+        methods = ("multi-scale", "brute force")
+
+        def loaded(m, use):  # each method's scene alone: a render traces every loaded scene's BSDFs
+            return with_scene_alone(lambda: lit_scene(name, width, height, m == "multi-scale", LIGHTS["both"]), use)
+
+        for m in methods:
+            loaded(m, lambda scene: timed_render(scene, spps[0], 1))  # compile
+        seconds = {m: {s: [] for s in spps} for m in methods}
         for r in range(args.rounds):
-            for s in spps:
-                for m, scene in scenes.items():
-                    seconds[m][s].append(timed_render(scene, s, 10 + r).seconds)
+            for m in methods:
+                def use(scene):
+                    timed_render(scene, 1, 1)  # its tables warm
+                    return [timed_render(scene, s, 10 + r).seconds for s in spps]
+                for s, t in zip(spps, loaded(m, use)):
+                    seconds[m][s].append(t)
         fit = {}
-        for m in scenes:
+        for m in methods:
             t = np.array([np.median(seconds[m][s]) for s in spps])
             tau, c = np.polyfit(np.array(spps, dtype=np.float64), t, 1)
             fit[m] = (c, tau)

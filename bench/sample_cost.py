@@ -40,7 +40,7 @@ def main(argv=None) -> int:
         parser.error("--marginal needs --spp 2 or more (it subtracts a render at spp / 4)")
     mi = setup_mitsuba()
     from mscloth.evaluation.error_budget import LIGHTS, interleaved_rounds, lit_scene
-    from mscloth.evaluation.renders import timed_render
+    from mscloth.evaluation.renders import timed_render, with_scene_alone
 
     width, height = (int(v) for v in args.res.split("x"))
     quarter = max(args.spp // 4, 1)  # --marginal: the render subtracted
@@ -51,39 +51,44 @@ def main(argv=None) -> int:
         print(f"{args.region}: crop x {crop[0]} y {crop[1]}, {crop[2]}x{crop[3]}")
     variants = [("multi-scale", {}, {}), ("brute force", {}, {"multiscale": False})]
     variants += [parse_variant(v) for v in args.variant]
-    scenes = []
-    for label, attrs, params in variants:
+    def loaded(attrs, params, use):
+        """``use(scene)`` with the variant's scene loaded alone (each render would trace
+        every loaded scene's BSDFs) and calibrated and rendered under its attributes."""
         saved = set_class_attributes(attrs)
-        try:  # load (and calibrate) under the variant's attributes, render under them too
-            scene = lit_scene(args.scene, width, height, params.pop("multiscale", True), LIGHTS["both"],
-                              crop=crop, **params)
-            timed_render(scene, args.spp, 1)  # compile
-            if args.marginal:
-                timed_render(scene, quarter, 1)
+        try:
+            return with_scene_alone(
+                lambda: lit_scene(args.scene, width, height, params.get("multiscale", True), LIGHTS["both"],
+                                  crop=crop, **{k: v for k, v in params.items() if k != "multiscale"}), use)
         finally:
             set_class_attributes(saved)
-        scenes.append((label, attrs, scene))
 
-    def seconds_per_spp(attrs, scene):
+    def compile_(scene):
+        timed_render(scene, args.spp, 1)
+        if args.marginal:
+            timed_render(scene, quarter, 1)
+
+    for label, attrs, params in variants:
+        loaded(attrs, params, compile_)
+
+    def seconds_per_spp(attrs, params):
         def render(r):
-            saved = set_class_attributes(attrs)
-            try:
+            def use(scene):
+                timed_render(scene, 1, 1)  # its tables warm
                 seconds = timed_render(scene, args.spp, 100 + r).seconds
                 if not args.marginal:
                     return seconds / args.spp
                 return (seconds - timed_render(scene, quarter, 200 + r).seconds) / (args.spp - quarter)
-            finally:
-                set_class_attributes(saved)
+            return loaded(attrs, params, use)
         return render
 
-    seconds = interleaved_rounds({label: seconds_per_spp(attrs, scene) for label, attrs, scene in scenes},
+    seconds = interleaved_rounds({label: seconds_per_spp(attrs, params) for label, attrs, params in variants},
                                  args.rounds)
     bf = np.array(seconds["brute force"])
     where = f", {args.region} region's box" if args.region else ""
     where += ", marginal: spp minus spp / 4" if args.marginal else ""
     print(f"| {args.scene} ({args.res}{where}, {args.spp} spp) | s per spp (median) | / brute force (median, range) |")
     print("|---|---|---|")
-    for label, _, _ in scenes:
+    for label, _, _ in variants:
         s = np.array(seconds[label])
         ratio = s / bf
         print(f"| {label} | {np.median(s):.4f} | {np.median(ratio):.2f}x ({ratio.min():.2f}-{ratio.max():.2f}) |")

@@ -142,8 +142,9 @@ class FootprintEstimator:
     #: residual texels (below) shiny cloth's footprint beats point samples down to a few
     #: texels: satin-plane near, noise per sample 0.033 (16 / 32) -> 0.016 (4 / 8) -> 0.0077
     #: (2 / 4), squared bias 1.6e-5 at 2 / 4, for +25% time; the satin spheres' near -24% at
-    #: 4 / 8 (performance log L48).
-    BLEND_TEXELS_BY_ROUGHNESS = ((0.15, 2.0, 4.0),)
+    #: 4 / 8 (performance log L48); 0.0083 -> 0.0063 at 1 / 2 (bias 2.0e-5) for +1% time
+    #: (L51).
+    BLEND_TEXELS_BY_ROUGHNESS = ((0.15, 1.0, 2.0),)
     #: Most probes (slices) across a footprint (more: boxes that fit long turned slices
     #: better, more variance between them). 8 left satin-plane's squared bias at
     #: 3.9e-4 / 3.6e-4 (middle / far), 16 at 6e-5 / 2.6e-5 for 11% / 34% more noise per

@@ -39,7 +39,7 @@ from .. import setup_mitsuba
 from .metrics import per_sample_noise, squared_bias
 from .references import reference_image
 from .regions import REGIONS, depth_and_cloth, region_masks
-from .renders import scene_dict, timed_render
+from .renders import scene_dict, timed_render, with_scene_alone
 
 #: Lighting cases: the built-in scenes' emitter keys left in.
 LIGHTS = {"both": ("sun", "sky"), "sun": ("sun",), "sky": ("sky",)}
@@ -141,20 +141,28 @@ def interleaved_renders(name: str, width: int, height: int, spps=(NOISE_SPP,), r
     alone if given), multi-scale and brute force at each of ``spps`` (or a {method: counts}
     dictionary), after a render of each that compiles, in :func:`interleaved_rounds`:
     {method: {samples taken: [seconds, one per round]}} (a stratified sampler takes some
-    counts up: 32 -> 35)."""
+    counts up: 32 -> 35).
+
+    Each round loads one method's scene, renders its counts and frees it before the other
+    method's: Dr.Jit traces a virtual call into every registered instance, so with both
+    scenes loaded each render also traced the other method's BSDFs (brute force's renders
+    paid ~25 ms for multi-scale's: +35% of a 16-spp frame of satin-plane; performance log
+    L51). A reloaded scene finds its kernels in Dr.Jit's cache."""
     setup_mitsuba()
     methods = ("multiscale", "bruteforce")
     counts = spps if isinstance(spps, dict) else {m: spps for m in methods}
-    scenes = {m: lit_scene(name, width, height, m == "multiscale", crop=crop) for m in methods}
-    renders = {}
-    for m, scene in scenes.items():
-        for spp in counts[m]:
-            taken = timed_render(scene, spp, 1).spp  # compiles
-            renders[m, taken] = lambda r, scene=scene, spp=spp: timed_render(scene, spp, 100 + r).seconds
-    seconds = interleaved_rounds(renders, rounds)
-    del scenes, renders
-    gc.collect()
-    return {m: {taken: values for (method, taken), values in seconds.items() if method == m} for m in methods}
+
+    def each_count(method, seed_of):
+        """``method``'s scene loaded alone, each of its counts rendered: [Render]."""
+        def use(scene):
+            timed_render(scene, 1, 1)  # its kernels (cached after the first load) and tables warm
+            return [timed_render(scene, spp, seed_of(spp)) for spp in counts[method]]
+        return with_scene_alone(lambda: lit_scene(name, width, height, method == "multiscale", crop=crop), use)
+
+    taken = {m: [r.spp for r in each_count(m, lambda spp: 1)] for m in methods}  # compiles
+    seconds = interleaved_rounds({m: lambda r, m=m: [x.seconds for x in each_count(m, lambda spp: 100 + r)]
+                                  for m in methods}, rounds)
+    return {m: {t: [per_round[i] for per_round in seconds[m]] for i, t in enumerate(taken[m])} for m in methods}
 
 
 def interleaved_time(name: str, width: int, height: int, spp: int = NOISE_SPP, rounds: int = 3,

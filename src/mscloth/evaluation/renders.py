@@ -40,6 +40,19 @@ class Render:
     image: np.ndarray = field(repr=False)
 
 
+def with_scene_alone(load, use):
+    """``use(scene)`` for a scene ``load()`` loads, the scene freed afterwards (``use`` keeps
+    no reference to it). Timings of one scene's renders need it alone in memory: Dr.Jit
+    traces a virtual call into every registered instance, so each render would also trace
+    the BSDFs of every other loaded scene (docs/performance-log.md L51)."""
+    scene = load()
+    try:
+        return use(scene)
+    finally:
+        del scene
+        gc.collect()
+
+
 def timed_render(scene, spp: int, seed: int) -> Render:
     """One ``mi.render`` read back to NumPy; time without the kernel compilation it triggered.
     A stratified sampler may take more than ``spp`` samples (multijitter: 32 -> 35); the

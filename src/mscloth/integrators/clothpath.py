@@ -178,7 +178,12 @@ class PathState:
     sampler, the loop's state). A dataclass is a Dr.Jit PyTree: ``dr.while_loop`` carries
     its fields, in JIT variants as symbolic loop variables, in scalar ones as Python values."""
 
-    ray: mi.Ray3f                  #: the ray to trace next
+    #: The ray to trace next, without its time and wavelengths, which the loop leaves as
+    #: they are: such state makes Dr.Jit trace the whole body twice to drop it
+    #: (:meth:`ray`; performance log L51).
+    ray_o: mi.Point3f
+    ray_d: mi.Vector3f
+    ray_maxt: mi.Float
     pi: mi.PreliminaryIntersection3f  #: its intersection, found at the end of the last iteration
     throughput: mi.Spectrum
     result: mi.Spectrum
@@ -194,6 +199,13 @@ class PathState:
     aovs: tuple                    #: the ``AOV_NAMES`` values (recorded at the first hit)
     delta_chain: mi.Bool           #: only delta bounces so far (the footprint is kept)
     gap_run: mi.UInt32             #: gap crossings since prev_si
+
+    def ray(self, camera_ray: mi.Ray3f) -> mi.Ray3f:
+        """The ray to trace next, with the time and wavelengths of the path's camera ray."""
+        return mi.Ray3f(self.ray_o, self.ray_d, self.ray_maxt, camera_ray.time, camera_ray.wavelengths)
+
+    def set_ray(self, ray: mi.Ray3f):
+        self.ray_o, self.ray_d, self.ray_maxt = ray.o, ray.d, ray.maxt
 
 
 def mis_weight(pdf_a, pdf_b):
@@ -365,14 +377,15 @@ def make_clothpath_class():
             tent_jitter = mi.warp.square_to_tent(sampler.next_2d()) if tent_filter else None
 
             def body(sampler, s: PathState):
-                si = s.pi.compute_surface_interaction(s.ray, mi.RayFlags.All)
+                s_ray = s.ray(ray)
+                si = s.pi.compute_surface_interaction(s_ray, mi.RayFlags.All)
                 # (scalar: a miss has no shape, and si.bsdf() would dereference it)
                 bsdf = si.bsdf() if any_or_true(si.is_valid()) else None
 
                 # ------------------------- Footprint -------------------------
                 first = s.depth == 0
                 w_hit = fp.cone_width(s.cone_width, s.cone_spread, si.t)
-                c_dx, c_dy = fp.cone_footprint(w_hit, s.ray.d, si.n, si.dp_du, si.dp_dv)
+                c_dx, c_dy = fp.cone_footprint(w_hit, s_ray.d, si.n, si.dp_du, si.dp_dv)
                 if has_diff:
                     r_dx, r_dy = fp.differential_footprint(si.p, si.n, si.dp_du, si.dp_dv,
                                                            o_x, d_x, o_y, d_y)
@@ -506,7 +519,7 @@ def make_clothpath_class():
 
                 # ----------------------- BSDF sampling ------------------------
                 bsdf_weight = si.to_world_mueller(bsdf_weight, -bsdf_sample.wo, si.wi)
-                s.ray = si.spawn_ray(si.to_world(bsdf_sample.wo))
+                s.set_ray(si.spawn_ray(si.to_world(bsdf_sample.wo)))
 
                 # ------- Update loop variables based on current interaction -----
                 s.throughput = s.throughput * bsdf_weight
@@ -541,11 +554,11 @@ def make_clothpath_class():
                                          s.throughput)
                 s.active = active_next & (logical_not(rr_active) | rr_continue) & (throughput_max != 0.0)
 
-                s.pi = scene.ray_intersect_preliminary(s.ray, coherent=False, active=s.active)
+                s.pi = scene.ray_intersect_preliminary(s.ray(ray), coherent=False, active=s.active)
                 return sampler, s
 
             state = PathState(
-                ray=ray, pi=pi,
+                ray_o=mi.Point3f(ray.o), ray_d=mi.Vector3f(ray.d), ray_maxt=mi.Float(ray.maxt), pi=pi,
                 throughput=mi.Spectrum(1.0), result=mi.Spectrum(0.0), eta=mi.Float(1.0),
                 depth=mi.UInt32(0),
                 # If emitters are not hidden, the environment is visible.
@@ -553,12 +566,18 @@ def make_clothpath_class():
                 prev_si=dr.zeros(mi.Interaction3f), prev_bsdf_pdf=mi.Float(1.0),
                 prev_bsdf_delta=mi.Bool(True), active=mi.Bool(active),
                 cone_width=mi.Float(width0), cone_spread=mi.Float(spread0),
-                aovs=tuple(mi.Float(0.0) for _ in AOV_NAMES),
+                # Only when recorded: a state variable the body leaves as it is (a literal)
+                # made Dr.Jit trace the whole loop body twice (performance log L51).
+                aovs=tuple(mi.Float(0.0) for _ in AOV_NAMES) if footprint_aovs else (),
                 delta_chain=mi.Bool(True), gap_run=mi.UInt32(0))
             # A symbolic loop in JIT variants; in scalar ones, where ``active`` is a Python
             # bool, dr.while_loop runs the body as a Python while loop.
-            _, state = dr.while_loop((sampler, state), lambda sampler, s: s.active, body,
-                                     label="clothpath")
+            # Without loop optimisation: it drops loop-invariant state (the sampler's seeds)
+            # by tracing the whole body a second time, a third of a multi-scale render's
+            # fixed cost for two fewer registers (performance log L51).
+            with dr.scoped_set_flag(dr.JitFlag.OptimizeLoops, False):
+                _, state = dr.while_loop((sampler, state), lambda sampler, s: s.active, body,
+                                         label="clothpath")
             return (dr.select(state.valid_ray, state.result, 0.0), state.valid_ray,
                     list(state.aovs) if footprint_aovs else [])
 
