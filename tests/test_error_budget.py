@@ -119,3 +119,27 @@ def test_interleaved_rounds_call_each_render_once_per_round_in_order():
     values = interleaved_rounds({"a": render("a"), "b": render("b")}, 3)
     assert calls == [("a", 0), ("b", 0), ("a", 1), ("b", 1), ("a", 2), ("b", 2)]
     assert values == {"a": [1, 13, 25], "b": [2, 14, 26]}
+
+
+def test_timed_scenes_are_loaded_alone_and_freed():
+    """with_scene_alone hands ``use`` the loaded scene and frees it afterwards: no cloth BSDF
+    of it is left registered, whose code every later render would trace (a timed brute-force
+    render paid ~25 ms for a multi-scale scene loaded beside it)."""
+    import gc
+
+    import mitsuba as mi
+
+    from mscloth import setup_mitsuba
+    from mscloth.evaluation.renders import with_scene_alone
+
+    setup_mitsuba()
+    scene_dict = {"type": "scene", "cloth": {"type": "rectangle", "bsdf": {"type": "cloth", "multiscale": False}}}
+
+    def cloth_bsdfs():
+        gc.collect()
+        return sum(1 for o in gc.get_objects() if type(o).__name__ == "ClothBSDF")
+
+    before = cloth_bsdfs()
+    seen = with_scene_alone(lambda: mi.load_dict(scene_dict), lambda scene: (len(scene.shapes()), cloth_bsdfs()))
+    assert seen == (1, before + 1)
+    assert cloth_bsdfs() == before

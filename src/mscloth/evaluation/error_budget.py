@@ -152,16 +152,16 @@ def interleaved_renders(name: str, width: int, height: int, spps=(NOISE_SPP,), r
     methods = ("multiscale", "bruteforce")
     counts = spps if isinstance(spps, dict) else {m: spps for m in methods}
 
-    def each_count(method, seed_of):
+    def each_count(method, seed):
         """``method``'s scene loaded alone, each of its counts rendered: [Render]."""
         def use(scene):
             timed_render(scene, 1, 1)  # its kernels (cached after the first load) and tables warm
-            return [timed_render(scene, spp, seed_of(spp)) for spp in counts[method]]
+            return [timed_render(scene, spp, seed) for spp in counts[method]]
         return with_scene_alone(lambda: lit_scene(name, width, height, method == "multiscale", crop=crop), use)
 
-    taken = {m: [r.spp for r in each_count(m, lambda spp: 1)] for m in methods}  # compiles
-    seconds = interleaved_rounds({m: lambda r, m=m: [x.seconds for x in each_count(m, lambda spp: 100 + r)]
-                                  for m in methods}, rounds)
+    taken = {m: [r.spp for r in each_count(m, 1)] for m in methods}  # compiles
+    seconds = interleaved_rounds({m: lambda r, m=m: [x.seconds for x in each_count(m, 100 + r)] for m in methods},
+                                 rounds)
     return {m: {t: [per_round[i] for per_round in seconds[m]] for i, t in enumerate(taken[m])} for m in methods}
 
 
