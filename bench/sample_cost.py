@@ -7,7 +7,7 @@ piece off (all lanes fibre level, visibility off, fewer residual texels) prices 
         --variant "all fibre level: --attr POINT_TEXELS=1e9 --attr FOOTPRINT_TEXELS=2e9 --attr BLEND_TEXELS_BY_ROUGHNESS=()"
 
 ``--marginal`` times a sample without the render's fixed cost (a render at spp minus one at
-spp / 4), which at 16 spp is a sixth of a multi-scale frame (tracing its larger kernel).
+spp / 4), which at 16 spp is an eighth of a multi-scale frame (tracing its larger kernel).
 
 ``--region near|middle|far`` renders only the bounding box of that region's pixels (a film
 crop), so that the time per sample is the region's own rather than the whole frame's.
