@@ -113,7 +113,7 @@ class SpecularDirections:
     inverses (one division per pair instead of three per tangent)."""
 
     valid: Any
-    #: wi == -wo makes h undefined; that direction has measure zero.
+    #: :func:`half_vector_defined`.
     finite: Any
     reflect: Any
     cos_i: Any
@@ -126,7 +126,7 @@ class SpecularDirections:
         cos_i = wi.z
         abs_cos_o = dr.abs(wo.z)
         valid = (cos_i > COS_EPSILON) & (abs_cos_o > COS_EPSILON)
-        return SpecularDirections(valid=valid, finite=dr.squared_norm(wi + wo) > 1e-12, reflect=wo.z > 0.0,
+        return SpecularDirections(valid=valid, finite=half_vector_defined(wi, wo), reflect=wo.z > 0.0,
                                   cos_i=cos_i, abs_cos_o=abs_cos_o,
                                   inv_cos_i=1.0 / dr.select(valid, cos_i, 1.0),
                                   inv_cos_o=1.0 / dr.select(valid, abs_cos_o, 1.0))
@@ -176,8 +176,13 @@ def pdf_specular(wi, wo, t, alpha):
 def specular_half_vector(wi, wo):
     """(h, valid) of :func:`pdf_specular`: the half vector, and where the density is
     defined (then sigma(wi) > 0)."""
-    finite = dr.squared_norm(wi + wo) > 1e-12
-    return dr.normalize(wi + wo), finite & (wi.z > COS_EPSILON)
+    return dr.normalize(wi + wo), half_vector_defined(wi, wo) & (wi.z > COS_EPSILON)
+
+
+def half_vector_defined(wi, wo):
+    """Whether the half vector of (wi, wo) is defined: wi == -wo leaves it none (a
+    direction of measure zero)."""
+    return dr.squared_norm(wi + wo) > 1e-12
 
 
 def pdf_specular_from(d, sigma_i, valid):
