@@ -89,12 +89,12 @@ class FootprintData:
                                                   np.ravel(tables.d_cluster_mean))
 
     def d_integral(self, q, bins, weights, cluster=None):
-        """The integral of D(h, t) I over query ``q``'s rectangle, interpolated bilinearly
-        between the direction ``bins`` around h with their ``weights``
-        (:func:`.sat_queries.hemisphere_bins`): four channels of the full directional SAT,
-        or for the rank-K table its K coefficient channels weighted by the bins' mixed
-        basis row (four basis reads, one SAT read). ``cluster``: over that visibility
-        cluster's texels only (the per-cluster tables)."""
+        """The integral of D(h, t) I over query ``q``'s rectangle, interpolated between the
+        direction ``bins`` around h with their ``weights``
+        (:func:`.sat_queries.hemisphere_triangle_bins`): three channels of the full
+        directional SAT, or for the rank-K table its K coefficient channels weighted by the
+        bins' mixed basis row (three basis reads, one SAT read). ``cluster``: over that
+        visibility cluster's texels only (the per-cluster tables)."""
         if isinstance(q, RectUnion):  # one branch around all of a part's reads
             return q.sum_over(lambda part: [self.d_integral(part, bins, weights, cluster)])[0]
         sats = self.d_sat if cluster is None else self.d_sat_cluster
@@ -111,8 +111,8 @@ class FootprintData:
         return total
 
     def d_basis_row(self, bins, weights):
-        """The rank-K basis row of direction h: the rows of its four ``bins`` mixed with
-        their bilinear ``weights`` (K values per lane)."""
+        """The rank-K basis row of direction h: the rows of its ``bins`` mixed with their
+        ``weights`` (K values per lane)."""
         K = self.d_rank
         row = [mi.Float(0.0) for _ in range(K)]
         for b, w in zip(bins, weights):
@@ -132,7 +132,7 @@ class FootprintData:
     def binned_ndf(centres, weights, tangent, alpha, norms=None):
         """D(h, t) I of one texel as the tables hold it: the fibre NDF of ``tangent`` at the
         ``centres`` of the direction bins around h (:meth:`bin_centres_of`, read once for
-        every texel), mixed with their bilinear ``weights``. Its footprint mean is what
+        every texel), mixed with their ``weights``. Its footprint mean is what
         :meth:`d_integral` reads (up to rank compression), so the residual texels take it
         as their control variate: the footprint estimate is then free of the bins' bias
         whatever their size, at the price of more variance where the bins are coarse for
@@ -140,8 +140,8 @@ class FootprintData:
         return sggx.ndf_mixture(centres, tangent, alpha, weights, norms)
 
     def cluster_d_means(self, bins, weights):
-        """Each visibility cluster's mean of D(h, t) I over the tile, bilinear between the
-        direction ``bins`` around h."""
+        """Each visibility cluster's mean of D(h, t) I over the tile, interpolated between
+        the direction ``bins`` around h."""
         out = [mi.Float(0.0) for _ in range(self.clusters)]
         for b, w in zip(bins, weights):
             for c, v in enumerate(gather_block(self.d_cluster_tile, b * self.clusters, self.clusters)):

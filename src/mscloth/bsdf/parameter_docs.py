@@ -207,8 +207,9 @@ Multi-scale shading takes the pixel footprint as the parallelogram spanned by
 (those whose bounding boxes cover least area; one for an axis-aligned rectangle), one slice
 per sample shaded whole as the box of its own area and centre. Footprints under 16 texels
 are shaded fibre level at a point drawn in the parallelogram, those over 32 texels whole,
-and those between by one or the other, with a weight linear in the area. Direction bins of
-the tables are read with their bilinear weights (docs/architecture.md).
+and those between by one or the other, with a weight linear in the area. The directional
+tables are read over the three half-vector bins around h (barycentric weights), visibility
+over four (bilinear) (docs/architecture.md).
 
 Sampling picks one lobe by an estimate of its albedo, calibrated when the BSDF is built
 (and when its roughness changes) against measured lobe albedos

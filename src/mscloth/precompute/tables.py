@@ -53,7 +53,7 @@ from ..cache import default_cache_dir, mark_used
 from ..errors import ParameterError
 from ._util import Progress, map_ordered, texel_pitch
 from ..scattering.fibre_ndf import fibre_ndf_of_cosines, fibre_ndf_of_unit_cosine_inplace
-from .direction_bins import bilinear_bins, bin_centres, fold_upper, hemisphere_to_square
+from .direction_bins import bin_centres, fold_upper, hemisphere_to_square, triangle_bins
 from .parallax import parallax_table
 from .summed_area import _residual_cumsum, build_sat, rect_mean, rect_sum
 from .visibility import cluster_visibility, visibility_table
@@ -177,13 +177,13 @@ class MultiscaleTables:
 
     def d_footprint_mean(self, h, x0, y0, x1, y1) -> np.ndarray:
         """Footprint mean of D(h, t(p)) * gap(p) for half vectors h (..., 3), interpolating
-        bilinearly between the four nearest h bins, as the BSDF does (reference version)."""
+        over the triangle of the three nearest h bins, as the BSDF does (reference version)."""
         h = np.asarray(h, dtype=np.float64)
         h = h / np.linalg.norm(h, axis=-1, keepdims=True)
-        idx, wts = bilinear_bins(hemisphere_to_square(fold_upper(h)), self.dr)
+        idx, wts = triangle_bins(hemisphere_to_square(fold_upper(h)), self.dr)
         if self.d_basis is not None:  # rank-K: the K coefficient means, then the basis rows
             coef = rect_mean(self.d_sat, self.d_mean, *(np.asarray(a, dtype=np.float64) for a in (x0, y0, x1, y1)))
-            rows = self.d_basis.astype(np.float64)[idx]                  # (..., 4, K)
+            rows = self.d_basis.astype(np.float64)[idx]                  # (..., 3, K)
             return np.sum(wts * np.einsum("...bk,...k->...b", rows, coef), axis=-1)
         x0, y0, x1, y1 = (np.asarray(a, dtype=np.float64)[..., None] for a in (x0, y0, x1, y1))
         vals = rect_mean(self.d_sat, self.d_mean, x0, y0, x1, y1, channels=idx)
