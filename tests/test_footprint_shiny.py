@@ -328,3 +328,88 @@ def test_only_shiny_cloth_reads_exact_corners_and_large_probes_keep_the_rounding
     rounded = [np.array(bsdf.eval(ctx, si, w)) for si in (large, middle)]
     np.testing.assert_array_equal(exact[0], rounded[0])
     assert np.mean(exact[1] != rounded[1]) > 0.5
+
+
+def _weighted_sample_means(bsdf, si, n, seed, tests):
+    """(means, standard errors) over the lanes of ``si`` of a sample's weight times each of
+    ``tests`` (functions of the sampled world direction, NumPy (3, n) -> (n,)), and the
+    sample record with its weight."""
+    rng = np.random.default_rng(seed)
+    si.p = mi.Point3f(*(mi.Float(rng.random(n) * 10.0) for _ in range(3)))
+    bs, w = bsdf.sample(mi.BSDFContext(), si, mi.Float(rng.random(n)), mi.Point2f(rng.random(n), rng.random(n)))
+    wo, red = np.array(bs.wo), np.array(w)[0]
+    values = [red * g(wo) for g in tests]
+    return [v.mean() for v in values], [v.std() / np.sqrt(n) for v in values], bs
+
+
+@pytest.mark.parametrize("roughness,half,pair", [
+    (0.1, 4.0, "near-specular"), (0.1, 24.0, "grazing-across"), (0.1, 1.5 * N_TEXELS, "transmission"),
+    (0.05, 24.0, "near-specular"), (0.05, 4.0, "transmission"), (0.05, 1.5 * N_TEXELS, "grazing-across")])
+def test_texel_weighed_samples_of_shiny_footprints_are_unbiased(roughness, half, pair, monkeypatch):
+    """Shiny cloth weighs a sampled direction at the texel that lent its tangent (f_k / p_k,
+    ``SAMPLE_AT_TEXEL_BY_ROUGHNESS``) instead of the footprint's f / p: the same expectation
+    of weight x g(wo) for any g (here: 1, the transmitted side, a narrow lobe around the
+    mirror direction), the texel uniform over the probe whichever lobe was sampled, within
+    the two estimates' sampling error. The density reported for MIS stays the footprint
+    mixture's, the one eval_pdf gives at the sampled direction."""
+    from mscloth.bsdf.footprint_estimator import FootprintEstimator
+    params = dict(SATIN, roughness=roughness)
+    wi = np.array(PAIRS[pair][0]) / np.linalg.norm(PAIRS[pair][0])
+    mirror = np.array([-wi[0], -wi[1], wi[2]])
+    tests = [lambda w: np.ones(w.shape[1]), lambda w: (w[2] < 0.0).astype(float),
+             lambda w: np.maximum(0.0, mirror @ w) ** 16]
+    n = 100000
+    means = {}
+    for at_texel in (True, False):
+        monkeypatch.setattr(FootprintEstimator, "SAMPLE_AT_TEXEL", at_texel)
+        bsdf = mi.load_dict(params)
+        assert bsdf.estimator.sample_at_texel() == at_texel
+        si = validation.footprint_interaction(n, [0.3, 0.55], half, N_TEXELS, wi)
+        means[at_texel] = _weighted_sample_means(bsdf, si, n, 11 if at_texel else 12, tests)
+        if at_texel:
+            bs = means[at_texel][2]
+            _, pdf = bsdf.eval_pdf(mi.BSDFContext(), si, bs.wo)
+            smooth = np.array(mi.has_flag(bs.sampled_type, mi.BSDFFlags.Smooth)) & (np.array(bs.pdf) > 0)
+            assert smooth.mean() > 0.5
+            np.testing.assert_allclose(np.array(bs.pdf)[smooth], np.array(pdf)[smooth], rtol=1e-4)
+    (m_t, e_t, _), (m_f, e_f, _) = means[True], means[False]
+    for j in range(len(tests)):
+        tolerance = 5.0 * np.hypot(e_t[j], e_f[j]) + 1e-4 * abs(m_f[j])
+        assert abs(m_t[j] - m_f[j]) <= tolerance, (j, m_t[j], m_f[j], tolerance)
+
+
+def test_the_texel_a_sample_is_weighed_at_is_uniform_whichever_lobe_is_sampled():
+    """The texel that weighs a sample (``SAMPLE_AT_TEXEL``) comes from sample1's place within
+    the slot it falls in, so it is uniform over the probe for every sampled component (the
+    defensive cosine, sheen, specular, diffuse): its mean position is the probe's centre and
+    its spread a uniform one's, per component. Picked from the specular slot alone, every
+    other component would weigh its samples at the first texel."""
+    from mscloth.validation import enabled_lobes
+    bsdf = mi.load_dict(dict(SATIN, roughness=0.1))
+    assert bsdf.estimator.sample_at_texel()
+    n, half = 200000, 24.0
+    wi = np.array(PAIRS["grazing-across"][0]) / np.linalg.norm(PAIRS["grazing-across"][0])
+    si = validation.footprint_interaction(n, [0.3, 0.55], half, N_TEXELS, wi)
+    rng = np.random.default_rng(5)
+    enabled = enabled_lobes(non_delta_context())
+    fr = bsdf.fibre.frame(si, True)
+    # One probe, the footprint's whole box (an axis-aligned square is one slice).
+    st = bsdf.estimator.state(si, fr, enabled, mi.Point2f(rng.random(n), rng.random(n)),
+                              mi.Point2f(rng.random(n), rng.random(n)), mi.Float(0.5))
+    wo, ok, component, _, _, _, chosen = bsdf.estimator.sample(
+        fr, st, enabled, mi.Float(rng.random(n)), mi.Point2f(rng.random(n), rng.random(n)), True)
+    x0, y0, x1, y1 = (np.array(v)[0] for v in st.fp.boxes[0])
+    x = (np.array(chosen.ix) + 0.5 - x0) % N_TEXELS / (x1 - x0)
+    y = (np.array(chosen.iy) + 0.5 - y0) % N_TEXELS / (y1 - y0)
+    component, ok = np.array(component), np.array(ok)
+    seen = 0
+    for c in np.unique(component[ok]):
+        mask = ok & (component == c)
+        if mask.sum() < 2000:
+            continue
+        seen += 1
+        for v in (x[mask], y[mask]):
+            # Texel centres on a 48-texel side: mean 1/2, variance (1 - 1/48^2) / 12.
+            assert abs(v.mean() - 0.5) < 5.0 * np.sqrt(1.0 / 12.0 / mask.sum()), (c, v.mean())
+            assert abs(v.var() - 1.0 / 12.0) < 0.01, (c, v.var())
+    assert seen >= 3

@@ -167,7 +167,13 @@ class ClothShading:
                 return estimator.eval_pdf(fr, st, wo, enabled, unrolled)
 
             sampled = estimator.sample(fr, st, enabled, *samples, active) if samples is not None else None
-            return self._evaluate(si, fr, eval_pdf, wos, sampled)
+            at_texel = None
+            if sampled is not None:
+                sampled, chosen = sampled[:-1], sampled[-1]
+                if estimator.sample_at_texel():
+                    value, pdf = estimator.texel_eval_pdf(fr, st, chosen, sampled[0], enabled)
+                    at_texel = (value, pdf, estimator.pdf(fr, st, sampled[0], enabled))
+            return self._evaluate(si, fr, eval_pdf, wos, sampled, at_texel)
 
         large = estimator.large_probe_grid()
         if large is None:
@@ -178,32 +184,40 @@ class ClothShading:
         return branch(fp.probe_texels() >= texels, (si, wos, samples), true_fn=lambda: shade(grid, False),
                       false_fn=shade, label="cloth_large_probe")
 
-    def _evaluate(self, si, fr: ViewFrame, eval_pdf, wos, sampled):
+    def _evaluate(self, si, fr: ViewFrame, eval_pdf, wos, sampled, at_sample=None):
         """(values, pdfs, sample record or ()) of a branch: ``eval_pdf`` at the directions
         ``wos`` and at the sampled one (``sampled``: what the branch's sample returned, with
         its gap's pdf and value; None without a sample), all in one loop
-        (:func:`eval_pdf_each`)."""
-        directions = list(wos) + ([sampled[0]] if sampled is not None else [])
+        (:func:`eval_pdf_each`); ``at_sample``: the sampled direction's (value, pdf)
+        if the branch has them already."""
+        directions = list(wos) + ([sampled[0]] if sampled is not None and at_sample is None else [])
         p = self.fibre.params
         gradients = dr.grad_enabled(directions, si, fr.k, p.roughness, p.thickness, p.sheen_roughness,
                                     p.sheen_thickness)
         values, pdfs = eval_pdf_each(eval_pdf, directions, gradients, self.LOOP_DIRECTIONS)
         if sampled is None:
             return values, pdfs, ()
-        record = self._sample_record(si, fr, values.pop(), pdfs.pop(), *sampled)
+        if at_sample is None:
+            value, pdf = values.pop(), pdfs.pop()
+            density = pdf
+        else:
+            value, pdf, density = at_sample
+        record = self._sample_record(si, fr, value, pdf, *sampled, density=density)
         return values, pdfs, record
 
     @staticmethod
-    def _sample_record(si, fr: ViewFrame, value, pdf, wo, ok, component, gap_ok, gap_pdf, gap_value):
+    def _sample_record(si, fr: ViewFrame, value, pdf, wo, ok, component, gap_ok, gap_pdf, gap_value, density=None):
         """(wo in the world's local frame, pdf, component, weight) of a sampled mirrored
-        direction with its ``value`` and ``pdf``, or of the gap: a tuple, the output of a
-        symbolic if."""
+        direction with its ``value`` and ``pdf`` (weight = value / pdf), or of the gap: a
+        tuple, the output of a symbolic if. ``density``: the sampling density to report
+        (MIS), where ``pdf`` is the density given a choice the weight depends on."""
         ok &= pdf > 0.0
         weight = dr.select(ok, value / dr.select(ok, pdf, 1.0), 0.0)
         gap_ok &= gap_pdf > 0.0
         gap_weight = gap_value / dr.select(gap_ok, gap_pdf, 1.0)
+        density = pdf if density is None else density
         return (dr.select(gap_ok, -si.wi, fr.mirror(wo)),
-                dr.select(gap_ok, gap_pdf, dr.select(ok, pdf, 0.0)),
+                dr.select(gap_ok, gap_pdf, dr.select(ok, density, 0.0)),
                 dr.select(gap_ok, mi.UInt32(GAP), component),
                 dr.select(gap_ok, mi.Color3f(gap_weight), weight))
 
