@@ -172,7 +172,8 @@ class ClothShading:
                 sampled, chosen = sampled[:-1], sampled[-1]
                 if estimator.sample_at_texel():
                     value, pdf = estimator.texel_eval_pdf(fr, st, chosen, sampled[0], enabled)
-                    at_texel = (value, pdf, estimator.pdf(fr, st, sampled[0], enabled))
+                    # (Where gradients flow the pdf's texel loop unrolls, as eval_pdf's.)
+                    at_texel = (value, pdf, estimator.pdf(fr, st, sampled[0], enabled, self._gradients(si, fr)))
             return self._evaluate(si, fr, eval_pdf, wos, sampled, at_texel)
 
         large = estimator.large_probe_grid()
@@ -191,9 +192,7 @@ class ClothShading:
         (:func:`eval_pdf_each`); ``at_sample``: the sampled direction's (value, pdf)
         if the branch has them already."""
         directions = list(wos) + ([sampled[0]] if sampled is not None and at_sample is None else [])
-        p = self.fibre.params
-        gradients = dr.grad_enabled(directions, si, fr.k, p.roughness, p.thickness, p.sheen_roughness,
-                                    p.sheen_thickness)
+        gradients = self._gradients(si, fr, directions)
         values, pdfs = eval_pdf_each(eval_pdf, directions, gradients, self.LOOP_DIRECTIONS)
         if sampled is None:
             return values, pdfs, ()
@@ -204,6 +203,12 @@ class ClothShading:
             value, pdf, density = at_sample
         record = self._sample_record(si, fr, value, pdf, *sampled, density=density)
         return values, pdfs, record
+
+    def _gradients(self, si, fr: ViewFrame, directions=()) -> bool:
+        """Whether gradients flow through a shading point (its directions, the interaction,
+        the shading parameters): loops over directions and texels then unroll."""
+        p = self.fibre.params
+        return dr.grad_enabled(directions, si, fr.k, p.roughness, p.thickness, p.sheen_roughness, p.sheen_thickness)
 
     @staticmethod
     def _sample_record(si, fr: ViewFrame, value, pdf, wo, ok, component, gap_ok, gap_pdf, gap_value, density=None):

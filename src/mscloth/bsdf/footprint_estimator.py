@@ -856,10 +856,10 @@ class FootprintEstimator:
         eps_side = dr.select(wo.z > 0.0, eps_c - eps_lower, eps_lower)
         return (1.0 - eps_c) * pdf + eps_side * dr.abs(wo.z) * dr.inv_pi
 
-    def pdf(self, fr: ViewFrame, st: FootprintState, wo, enabled):
+    def pdf(self, fr: ViewFrame, st: FootprintState, wo, enabled, unrolled=False):
         """The density of :meth:`sample` at ``wo`` (mirrored frame) alone: :meth:`eval_pdf`'s
         without the BSDF's value, the specular lobe's over every residual texel (its
-        tangent's visible flakes) and nothing read from the tables."""
+        tangent's visible flakes) and nothing read from the tables; ``unrolled`` as there."""
         fibre = self.fibre
         roughness = fibre.params.roughness
         wi = fr.wi
@@ -880,7 +880,8 @@ class FootprintEstimator:
                                                          sggx.ndf(half.folded, t, roughness, folded2),
                                                          sggx.projected_area(wi, t, roughness, wi2)),)
 
-            specular_mean = self._texel_sums(texels, (), texel_pdf, 1, not self.LOOP_TEXELS)[0] * (1.0 / len(texels))
+            specular_mean = (self._texel_sums(texels, (), texel_pdf, 1, unrolled or not self.LOOP_TEXELS)[0]
+                             * (1.0 / len(texels)))
         return dr.select(valid, self._mixture_pdf(fr, st, wo, enabled, fold, specular_mean), 0.0)
 
     @staticmethod
