@@ -171,19 +171,25 @@ def test_bin_centres_layout():
     np.testing.assert_allclose(c[2 * n + 2], [0, 0, 1], atol=1e-12)  # odd n: zenith bin
 
 
-def test_bilinear_bins():
-    n = 4
-    # At a bin centre all the weight is on that bin.
-    idx, w = bilinear_bins([(2 + 0.5) / n, (1 + 0.5) / n], n)
-    assert np.isclose(w[np.argmax(w)], 1.0) and idx[np.argmax(w)] == 1 * n + 2
-    # Interior: interpolates a function linear in the bin coordinates exactly.
-    rng = np.random.default_rng(2)
-    p = rng.uniform(0.5 / n, 1 - 0.5 / n, size=(500, 2))
-    idx, w = bilinear_bins(p, n)
+def _check_centre_and_linear(bins_of, n, rng, count):
+    """An interpolation over direction bins (``bins_of(p, n)`` -> indices, weights): all the
+    weight on the bin at its centre, and functions linear in the bin coordinates exact in
+    the interior. Returns the interior points with their bins and weights."""
+    idx, w = bins_of([(n - 2 + 0.5) / n, (1 + 0.5) / n], n)
+    assert np.isclose(w[np.argmax(w)], 1.0) and idx[np.argmax(w)] == 1 * n + n - 2
+    p = rng.uniform(0.5 / n, 1 - 0.5 / n, size=(count, 2))
+    idx, w = bins_of(p, n)
     a, b = idx % n, idx // n
     f = lambda a, b: 3.0 * a - 2.0 * b + 1.0   # noqa: E731
     np.testing.assert_allclose(np.sum(w * f(a, b), axis=-1),
                                f(p[:, 0] * n - 0.5, p[:, 1] * n - 0.5), atol=1e-12)
+    return p, idx, w
+
+
+def test_bilinear_bins():
+    n = 4
+    rng = np.random.default_rng(2)
+    _check_centre_and_linear(bilinear_bins, n, rng, 500)
     # Edges clamp; weights always sum to 1 and are >= 0.
     p = rng.uniform(0, 1, size=(500, 2))
     p[:10] = [[0, 0], [1, 1], [0, 1], [1, 0], [0.01, 0.5], [0.99, 0.5], [0.5, 0], [0.5, 1],
@@ -202,17 +208,10 @@ def test_triangle_bins():
     functions linear in the bin coordinates come out exactly, the result is continuous
     across the cell's diagonal and its edges, and edges clamp."""
     n = 5
-    idx, w = triangle_bins([(3 + 0.5) / n, (1 + 0.5) / n], n)
-    assert np.isclose(w[np.argmax(w)], 1.0) and idx[np.argmax(w)] == 1 * n + 3
     rng = np.random.default_rng(4)
-    p = rng.uniform(0.5 / n, 1 - 0.5 / n, size=(2000, 2))
-    idx, w = triangle_bins(p, n)
+    p, idx, w = _check_centre_and_linear(triangle_bins, n, rng, 2000)
     four, _ = bilinear_bins(p, n)
     assert np.all(np.isin(idx, four).all(axis=-1))  # a subset of the cell's four
-    a, b = idx % n, idx // n
-    f = lambda a, b: 3.0 * a - 2.0 * b + 1.0   # noqa: E731
-    np.testing.assert_allclose(np.sum(w * f(a, b), axis=-1),
-                               f(p[:, 0] * n - 0.5, p[:, 1] * n - 0.5), atol=1e-12)
     # Continuity: a random table interpolated on both sides of the diagonal and of a
     # cell edge agrees (the bilinear four would too; a nearest-bin lookup would not).
     table = rng.random(n * n)
