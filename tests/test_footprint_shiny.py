@@ -456,3 +456,31 @@ def test_texel_weighed_samples_render_the_footprint_image_under_an_area_light(mo
     se = np.sqrt(a.var(axis=0, ddof=1) / passes + b.var(axis=0, ddof=1) / passes)
     worst = np.max(np.abs(a.mean(axis=0) - b.mean(axis=0)) / (5.0 * se + 1e-5))
     assert worst <= 1.0, worst
+
+
+def test_without_mis_a_shiny_sample_reports_the_density_given_its_texel():
+    """``eval_pdf_sample_n(..., mis=False)`` (clothpath, where nothing reads the density
+    beyond its sign): the same directions and weights as with MIS, a positive density
+    wherever the weight is not zero, and on shiny footprints the density given the texel
+    that weighs the sample (its own specular lobe) instead of the mixture's, which
+    eval_pdf gives: the pass over every texel's lobe is skipped."""
+    bsdf = mi.load_dict(dict(SATIN, roughness=0.1))
+    n = 20000
+    wi = np.array(PAIRS["near-specular"][0]) / np.linalg.norm(PAIRS["near-specular"][0])
+    si = validation.footprint_interaction(n, [0.3, 0.55], 24.0, N_TEXELS, wi)
+    rng = np.random.default_rng(8)
+    si.p = mi.Point3f(*(mi.Float(rng.random(n) * 10.0) for _ in range(3)))
+    s1, s2 = mi.Float(rng.random(n)), mi.Point2f(rng.random(n), rng.random(n))
+    ctx = mi.BSDFContext()
+    sun = mi.Vector3f(-0.3, -0.1, 0.95)
+    out = {mis: bsdf.eval_pdf_sample_n(ctx, si, [sun], s1, s2, True, None, "box", mis) for mis in (True, False)}
+    (_, _, bs_t, w_t), (_, _, bs_f, w_f) = out[True], out[False]
+    np.testing.assert_array_equal(np.array(bs_t.wo), np.array(bs_f.wo))
+    np.testing.assert_array_equal(np.array(w_t), np.array(w_f))
+    weighed = np.array(w_f).max(axis=0) > 0.0
+    assert weighed.mean() > 0.9 and np.all(np.array(bs_f.pdf)[weighed] > 0.0)
+    weighed &= np.array(mi.has_flag(bs_f.sampled_type, mi.BSDFFlags.Smooth))  # not the gap's delta
+    _, mixture = bsdf.eval_pdf(ctx, si, bs_t.wo)
+    np.testing.assert_allclose(np.array(bs_t.pdf)[weighed], np.array(mixture)[weighed], rtol=1e-4)
+    differs = np.abs(np.array(bs_f.pdf) - np.array(mixture)) > 1e-3 * np.array(mixture)
+    assert differs[weighed].mean() > 0.3

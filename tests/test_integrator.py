@@ -1168,3 +1168,45 @@ def test_tent_uv_filter_keeps_detail_at_a_few_pixels_per_period():
     square = np.abs(np.fft.rfft(np.tile([1.0, 1, 1, 1, 0, 0, 0, 0], 8)))[8] * 2.0 / 64
     assert box_beat == pytest.approx(square, rel=0.03)
     assert tent_beat == pytest.approx(2.0 / np.pi * np.sinc(0.125) ** 3, rel=0.03)
+
+
+def test_the_sample_density_is_needed_where_mis_or_ray_cones_read_it():
+    """clothpath tells BSDFs (``eval_pdf_sample_n``'s ``mis``) whether it reads a sample's
+    density beyond its sign: with an emitter it samples that a path can also hit (area
+    lights, environments it samples), or ray cones after rough bounces; not with delta
+    emitters alone (a sun, a point light), whatever lights the scene by BSDF sampling alone."""
+    from mscloth.integrators.clothpath import sample_density_needed
+    sun = mi.load_dict({"type": "directional", "direction": [0, 0, -1]})
+    point = mi.load_dict({"type": "point", "position": [0, 0, 1]})
+    sky = mi.load_dict({"type": "constant"})
+    area = mi.load_dict({"type": "rectangle", "emitter": {"type": "area"}}).emitter()
+    assert not sample_density_needed([], False)
+    assert not sample_density_needed([sun, point], False)
+    assert sample_density_needed([sun, sky], False)
+    assert sample_density_needed([area], False)
+    assert sample_density_needed([sun], True)
+
+
+def test_bsdfs_without_the_mis_argument_still_shade():
+    """``mis`` came later to the footprint protocol: a footprint-shading BSDF whose
+    eval_pdf_sample_n does not take it is called without it."""
+    calls = []
+
+    class Old:
+        footprint_shading = True
+
+        def eval_pdf_sample_n(self, ctx, si, wos, sample1, sample2, active=True, pixel_offset=None):
+            calls.append(pixel_offset)
+            return [1.0], [1.0], None, 1.0
+
+    class New(Old):
+        def eval_pdf_sample_n(self, ctx, si, wos, sample1, sample2, active=True, pixel_offset=None,
+                              pixel_filter="box", mis=True):
+            calls.append(mis)
+            return [1.0], [1.0], None, 1.0
+
+    from mscloth.integrators import bsdf_contract as contract
+    contract.eval_pdf_sample_n(Old(), None, None, None, [None], 0.5, None, True, "offset", "box", False)
+    contract.eval_pdf_sample_n(New(), None, None, None, [None], 0.5, None, True, "offset", "box", False)
+    contract.eval_pdf_sample_n(New(), None, None, None, [None], 0.5, None, True, "offset", "box", True)
+    assert calls == ["offset", False, True]

@@ -86,14 +86,16 @@ class ClothShading:
         self.fibre = fibre
         self.estimator = estimator
 
-    def shade(self, enabled, si, wos, samples, active, pixel_offset=None, pixel_filter="box"):
+    def shade(self, enabled, si, wos, samples, active, pixel_offset=None, pixel_filter="box", mis=True):
         """eval_pdf at the world-frame directions ``wos`` and, if ``samples`` =
         (sample1, sample2) is given, one sample: ([values], [pdfs], (bs, weight) or ()).
         ``pixel_offset``: the sample's offset from its pixel's centre, in pixels along
         the footprint's edges si.duv_dx, si.duv_dy (each in [-1/2, 1/2); below: not
         known), which picks its probe (:meth:`.FootprintEstimator.footprint`) and
         fibre-level point; ``pixel_filter``: the filter over the pixel (``box`` or ``tent``,
-        ``clothpath``'s ``uv_filter``) that places them.
+        ``clothpath``'s ``uv_filter``) that places them; ``mis`` False: the sample's density
+        is read only for its sign, and shiny footprints report the one given the texel
+        that weighs the sample instead of the mixture's (:meth:`.FootprintEstimator.pdf`).
 
         Footprints of a texel or more take the multi-scale branch, smaller ones the
         fibre-level one; a symbolic if, so a packet of lanes that all take one branch
@@ -108,7 +110,7 @@ class ClothShading:
             hashed, fp = self._hashed_footprint(si, fr)
             values, pdfs, record = branch(
                 fp.use, (si, wos, samples),
-                true_fn=lambda: self._footprint_branch(si, fr, enabled, wos, samples, active, fp, hashed),
+                true_fn=lambda: self._footprint_branch(si, fr, enabled, wos, samples, active, fp, hashed, mis),
                 false_fn=lambda: self._point_branch(si, fr, enabled, wos, samples, active, fp, hashed[0]),
                 label="cloth_footprint")
         values = [dr.select(active, v, 0.0) for v in values]
@@ -154,7 +156,7 @@ class ClothShading:
             sampled = (wo, ok, component, gap_ok, probs[GAP], fibre.gap_value(fr, pt.yarn))
         return self._evaluate(si, fr, eval_pdf, wos, sampled)
 
-    def _footprint_branch(self, si, fr: ViewFrame, enabled, wos, samples, active, fp, hashed):
+    def _footprint_branch(self, si, fr: ViewFrame, enabled, wos, samples, active, fp, hashed, mis=True):
         """The same for the footprint BSDF (multi-scale shading) of footprint ``fp``,
         with the shading hash ``hashed`` it came from."""
         estimator = self.estimator
@@ -173,7 +175,8 @@ class ClothShading:
                 if estimator.sample_at_texel():
                     value, pdf = estimator.texel_eval_pdf(fr, st, chosen, sampled[0], enabled)
                     # (Where gradients flow the pdf's texel loop unrolls, as eval_pdf's.)
-                    at_texel = (value, pdf, estimator.pdf(fr, st, sampled[0], enabled, self._gradients(si, fr)))
+                    density = estimator.pdf(fr, st, sampled[0], enabled, self._gradients(si, fr)) if mis else pdf
+                    at_texel = (value, pdf, density)
             return self._evaluate(si, fr, eval_pdf, wos, sampled, at_texel)
 
         large = estimator.large_probe_grid()

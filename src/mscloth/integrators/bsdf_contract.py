@@ -12,6 +12,8 @@ the point), see :mod:`mscloth.integrators.footprint`.
 """
 from __future__ import annotations
 
+import inspect
+
 from typing import Protocol, runtime_checkable
 
 import drjit as dr
@@ -31,14 +33,17 @@ class FootprintBSDF(Protocol):
     footprint_shading: bool
 
     def eval_pdf_sample_n(self, ctx, si, wos, sample1, sample2, active=True, pixel_offset=None,
-                          pixel_filter="box"):
+                          pixel_filter="box", mis=True):
         """``([value], [pdf], bs, weight)``: ``eval_pdf`` (times cos) at each direction of
         ``wos`` (local frame) and one ``sample``, sharing the work of one shading point.
         ``pixel_offset`` (``footprint_shading`` BSDFs only, at first hits): the camera
         sample's offset from its pixel centre in pixels, each coordinate in [-1/2, 1/2),
         -1 where unknown: the part of the footprint the sample stands for;
         ``pixel_filter`` (``box`` or ``tent``: ``clothpath``'s ``uv_filter``) the filter over
-        the pixel that the offset places the sample in. Must use
+        the pixel that the offset places the sample in; ``mis`` (optional parameter)
+        False: the caller uses the sample's ``bs.pdf`` only where it is positive (no MIS
+        at the next hit, no ray cone from it), so a BSDF may report there the density
+        given choices its weight depends on, if that is cheaper. Must use
         ``sample1``/``sample2`` as ``sample`` would (same random-number order)."""
 
     def footprint_texels(self, si, active=True):
@@ -73,15 +78,19 @@ def has_gap_transmission(bsdf) -> bool:
 
 
 def eval_pdf_sample_n(bsdf, ctx, si, si_centred, wos, sample1, sample2, active=True, pixel_offset=None,
-                      pixel_filter="box"):
+                      pixel_filter="box", mis=True):
     """eval_pdf at each direction of ``wos`` and one sample: ([values], [pdfs], bs, weight).
 
     BSDFs with their own ``eval_pdf_sample_n`` (``cloth``) share the work of one shading
     point between all directions; those that shade whole footprints see ``si_centred``
-    (uv at the pixel centre on first hits), ``pixel_offset`` and ``pixel_filter``. Others get eval_pdf /
-    sample calls on ``si`` (one direction: eval_pdf_sample, exactly as ``path``)."""
+    (uv at the pixel centre on first hits), ``pixel_offset``, ``pixel_filter`` and, where
+    their method takes it, ``mis``. Others get eval_pdf / sample calls on ``si`` (one
+    direction: eval_pdf_sample, exactly as ``path``)."""
     if shades_footprints(bsdf):
-        if pixel_filter == "box":  # (the argument came later: BSDFs without it still work)
+        if not mis and "mis" in inspect.signature(bsdf.eval_pdf_sample_n).parameters:
+            return bsdf.eval_pdf_sample_n(ctx, si_centred, wos, sample1, sample2, active, pixel_offset, pixel_filter,
+                                          mis)
+        if pixel_filter == "box":  # (the arguments came later: BSDFs without them still work)
             return bsdf.eval_pdf_sample_n(ctx, si_centred, wos, sample1, sample2, active, pixel_offset)
         return bsdf.eval_pdf_sample_n(ctx, si_centred, wos, sample1, sample2, active, pixel_offset, pixel_filter)
     if shades_n_directions(bsdf):

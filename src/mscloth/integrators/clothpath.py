@@ -5,6 +5,8 @@ Plugin classes bind to the Mitsuba variant active when they are defined, so
 """
 from __future__ import annotations
 
+import functools
+
 from dataclasses import dataclass
 
 import drjit as dr
@@ -237,6 +239,16 @@ def _is_uniform(emitter):
     return emitter is not None and emitter.class_name() == "ConstantBackgroundEmitter"
 
 
+def sample_density_needed(emitters, scattered_footprints: bool) -> bool:
+    """Whether a BSDF sample's density is read beyond its sign: for MIS where a path may
+    hit an emitter that is also sampled (a non-delta one among ``emitters``, those the
+    integrator samples), or for the ray cone's spread after a rough bounce
+    (``scattered_footprints``). Otherwise ``eval_pdf_sample_n`` is called with ``mis``
+    False, and a BSDF may skip computing the mixture's density (``cloth``'s shiny
+    footprints: docs/decisions.md)."""
+    return bool(scattered_footprints) or any(not mi.has_flag(e.flags(), mi.EmitterFlags.Delta) for e in emitters)
+
+
 def canonical_emitter_order(emitters) -> list:
     """``emitters`` in an order that depends on the scene alone: by id (the shape's, for an
     area light), then kind and bounds. Mitsuba lists a scene's emitters in the order its
@@ -349,6 +361,9 @@ def make_clothpath_class():
             if env_by_bsdf:
                 emitters = [e for e in emitters if not _is_uniform(e)]
             all_emitters = self.emitter_sampling == "all" and (len(emitters) > 1 or env_by_bsdf)
+            # ``mis`` bound here, a Python bool: dr.dispatch would turn an argument into a mask.
+            shade_n = functools.partial(contract.eval_pdf_sample_n,
+                                        mis=sample_density_needed(emitters, scattered_footprints))
             n_em = self.emitter_samples
             env = opaque_environment(scene) if jit else None
             gap_bsdfs = gap_shadows.gap_bsdfs(scene) if self.gap_shadows else []
@@ -502,7 +517,7 @@ def make_clothpath_class():
                 # Lanes whose path ends here skip the BSDF (as path.cpp masks it with
                 # active_next): a footprint shading is costly, and its result unused.
                 bsdf_vals, bsdf_pdfs, bsdf_sample, bsdf_weight = contract.call(
-                    bsdf, contract.eval_pdf_sample_n, bsdf_ctx, si_shade, si_centred, wos, sample_1, sample_2,
+                    bsdf, shade_n, bsdf_ctx, si_shade, si_centred, wos, sample_1, sample_2,
                     True, pixel_offset, self.uv_filter, active=active_next)
 
                 # ---------------- Emitter sampling contribution ---------------
