@@ -219,7 +219,7 @@ class FibreBSDF:
         wi, t, yarn, k = pt.wi, pt.tangent, pt.yarn, pt.k
         cos_o = wo.z
         up = cos_o > 0.0
-        valid = (wi.z > spongecake.COS_EPSILON) & (dr.abs(cos_o) > spongecake.COS_EPSILON)
+        valid = spongecake.directions_valid(wi, wo)
         value, fuzz = self.sheen_and_fuzz(pt.frame, wo, enabled)
         under_fuzz = fuzz * yarn
         reflection = mi.Color3f(0.0)

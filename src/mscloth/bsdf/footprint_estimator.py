@@ -699,7 +699,7 @@ class FootprintEstimator:
         n = len(texels)
         cos_o = wo.z
         up = cos_o > 0.0
-        valid = (wi.z > spongecake.COS_EPSILON) & (dr.abs(cos_o) > spongecake.COS_EPSILON)
+        valid = spongecake.directions_valid(wi, wo)
         yarn_albedo = st.yarn_albedo
         specular = enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]
         diffuse = enabled[DIFFUSE_REFLECTION] or enabled[DIFFUSE_TRANSMISSION]
@@ -717,8 +717,7 @@ class FootprintEstimator:
             bins_o = fd.visibility_bins(wo_up)
             v_p = [t_.v_i * fd.visibility_in_bins(t_.vis, bins_o, back_o) for t_ in texels]
         if specular:
-            h = dr.normalize(wi + wo)
-            h = dr.select(h.z < 0.0, -h, h)  # D is even
+            h, h2, half, folded2 = self._half_vectors(wi, wo)
             # The tables hold D of the maps' own tangents; the mirrored frame flips their
             # z, so a viewer below looks up the mirror image of h (then folded up again).
             h_table = mi.Vector3f(h.x, h.y, fr.sign * h.z)
@@ -731,11 +730,9 @@ class FootprintEstimator:
             centres = fd.bin_centres_of(bins)
             d_yarn = fd.d_integral(st.q, bins, weights) * st.inv_area  # mean over P of D I
             # What every texel shares, computed once outside their loop: the squared
-            # lengths of the directions, and the specular density's half vectors.
-            h2, wi2, wo2 = dr.squared_norm(h), dr.dot(wi, wi), dr.dot(wo, wo)
+            # lengths of the directions (the half vectors' above).
+            wi2, wo2 = dr.dot(wi, wi), dr.dot(wo, wo)
             centre_norms = [dr.squared_norm(c) for c in centres]
-            half = SpecularHalfVectors.of(wi, wo)
-            folded2 = dr.squared_norm(half.folded)
 
             # f_rs per unit D: G of the footprint's mean SGGX matrix (g_bar), and of each
             # residual texel's own tangent (g_k). The residual corrects mean(D) g_bar
@@ -846,15 +843,30 @@ class FootprintEstimator:
         pdf = self._mixture_pdf(fr, st, wo, enabled, fold, pdf_spec * (1.0 / n))
         return dr.select(valid, value, 0.0), dr.select(valid, pdf, 0.0)
 
+    @staticmethod
+    def _half_vectors(wi, wo):
+        """(h folded up, |h|^2, the specular density's half vectors, |folded|^2) at (wi, wo):
+        what eval_pdf's specular terms and :meth:`pdf` share, built one way for both."""
+        h = dr.normalize(wi + wo)
+        h = dr.select(h.z < 0.0, -h, h)  # D is even
+        half = SpecularHalfVectors.of(wi, wo)
+        return h, dr.squared_norm(h), half, dr.squared_norm(half.folded)
+
+    @staticmethod
+    def _with_defensive(st: FootprintState, wo, pdf):
+        """A density of the footprint's lobes mixed with the defensive cosine (each side's
+        share); validity not masked."""
+        eps_c, eps_lower = st.eps_c, st.eps_lower
+        eps_side = dr.select(wo.z > 0.0, eps_c - eps_lower, eps_lower)
+        return (1.0 - eps_c) * pdf + eps_side * dr.abs(wo.z) * dr.inv_pi
+
     def _mixture_pdf(self, fr: ViewFrame, st: FootprintState, wo, enabled, fold, specular_mean):
         """The footprint mixture's density at ``wo`` given its specular lobe's
         (``specular_mean``: over the texels that may lend their tangent), with the
         defensive cosine; validity not masked."""
         pdf = self.fibre.samplers.pdf(self.fibre.params.roughness, fr.wi, wo, st.probs, None, enabled, fold,
                                       specular_mean=specular_mean)
-        eps_c, eps_lower = st.eps_c, st.eps_lower
-        eps_side = dr.select(wo.z > 0.0, eps_c - eps_lower, eps_lower)
-        return (1.0 - eps_c) * pdf + eps_side * dr.abs(wo.z) * dr.inv_pi
+        return self._with_defensive(st, wo, pdf)
 
     def pdf(self, fr: ViewFrame, st: FootprintState, wo, enabled, unrolled=False):
         """The density of :meth:`sample` at ``wo`` (mirrored frame) alone: :meth:`eval_pdf`'s
@@ -863,16 +875,13 @@ class FootprintEstimator:
         fibre = self.fibre
         roughness = fibre.params.roughness
         wi = fr.wi
-        valid = (wi.z > spongecake.COS_EPSILON) & (dr.abs(wo.z) > spongecake.COS_EPSILON)
+        valid = spongecake.directions_valid(wi, wo)
         fold = fibre.samplers.fold_share(fr.k, enabled)
         specular_mean = None
         texels = st.texels
         if enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]:
-            h = dr.normalize(wi + wo)
-            h = dr.select(h.z < 0.0, -h, h)
-            h2, wi2 = dr.squared_norm(h), dr.dot(wi, wi)
-            half = SpecularHalfVectors.of(wi, wo)
-            folded2 = dr.squared_norm(half.folded)
+            h, h2, half, folded2 = self._half_vectors(wi, wo)
+            wi2 = dr.dot(wi, wi)
 
             def texel_pdf(t_):
                 t = t_.tangent
@@ -976,8 +985,4 @@ class FootprintEstimator:
         ``wo``, and the density of the footprint mixture given that texel (its specular
         lobe on the texel's tangent, with the defensive cosine)."""
         value, pdf = self.fibre.eval_pdf(pt, wo, enabled, st.probs)
-        eps_c, eps_lower = st.eps_c, st.eps_lower
-        eps_side = dr.select(wo.z > 0.0, eps_c - eps_lower, eps_lower)
-        valid = (fr.wi.z > spongecake.COS_EPSILON) & (dr.abs(wo.z) > spongecake.COS_EPSILON)
-        pdf = (1.0 - eps_c) * pdf + eps_side * dr.abs(wo.z) * dr.inv_pi
-        return value, dr.select(valid, pdf, 0.0)
+        return value, dr.select(spongecake.directions_valid(fr.wi, wo), self._with_defensive(st, wo, pdf), 0.0)

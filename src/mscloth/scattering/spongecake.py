@@ -125,7 +125,7 @@ class SpecularDirections:
     def of(wi, wo) -> SpecularDirections:
         cos_i = wi.z
         abs_cos_o = dr.abs(wo.z)
-        valid = (cos_i > COS_EPSILON) & (abs_cos_o > COS_EPSILON)
+        valid = directions_valid(wi, wo)
         return SpecularDirections(valid=valid, finite=half_vector_defined(wi, wo), reflect=wo.z > 0.0,
                                   cos_i=cos_i, abs_cos_o=abs_cos_o,
                                   inv_cos_i=1.0 / dr.select(valid, cos_i, 1.0),
@@ -177,6 +177,12 @@ def specular_half_vector(wi, wo):
     """(h, valid) of :func:`pdf_specular`: the half vector, and where the density is
     defined (then sigma(wi) > 0)."""
     return dr.normalize(wi + wo), half_vector_defined(wi, wo) & (wi.z > COS_EPSILON)
+
+
+def directions_valid(wi, wo):
+    """Where the layer's BSDF is evaluated: the viewer above the surface plane and the
+    outgoing direction off it, both beyond COS_EPSILON (grazing ones scatter nothing)."""
+    return (wi.z > COS_EPSILON) & (dr.abs(wo.z) > COS_EPSILON)
 
 
 def half_vector_defined(wi, wo):
