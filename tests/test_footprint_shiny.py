@@ -314,9 +314,11 @@ def test_exact_corners_keep_the_mean_and_drop_the_rounding_noise(pair):
 def test_only_shiny_cloth_reads_exact_corners_and_large_probes_keep_the_rounding(monkeypatch):
     """Rough cloth keeps rounded corners (exact ones cost more than their noise gain there:
     sphere -1 to -7% noise for +14% time); through the BSDF, a large probe of shiny cloth
-    gives the very values it gave with rounded corners everywhere, a mid-sized one others."""
+    gives the very values it gave with rounded corners everywhere, a mid-sized one others
+    (shaded by the SAT means: not texel by texel, which reads no corners)."""
     from mscloth.bsdf.footprint_estimator import FootprintEstimator
 
+    monkeypatch.setattr(FootprintEstimator, "COVERED_TEXELS", 0)
     assert not mi.load_dict(dict(SATIN, roughness=0.4)).estimator.exact_corners()
     bsdf = mi.load_dict(dict(SATIN, roughness=0.1))
     wi, wo = PAIRS["grazing-across"]
@@ -484,3 +486,86 @@ def test_without_mis_a_shiny_sample_reports_the_density_given_its_texel():
     np.testing.assert_allclose(np.array(bs_t.pdf)[weighed], np.array(mixture)[weighed], rtol=1e-4)
     differs = np.abs(np.array(bs_f.pdf) - np.array(mixture)) > 1e-3 * np.array(mixture)
     assert differs[weighed].mean() > 0.3
+
+
+def test_a_texel_grid_covers_its_box_exactly():
+    """The texels a box covers (TexelGrid): every one of them once, each with its area
+    under the box, so that the shares add up to the box's area; boxes anywhere (negative
+    and far texel coordinates, whole-texel edges) and empty ones (no texels)."""
+    from mscloth.bsdf.footprint_estimator import TexelGrid
+
+    rng = np.random.default_rng(5)
+    boxes = [(0.2, 0.7, 3.9, 2.1), (-5.5, 7.0, -1.0, 9.25), (1000.3, -2.0, 1003.0, 1.0), (2.0, 2.0, 2.0, 5.0)]
+    boxes += [tuple(np.r_[p, p + rng.random(2) * 6.0]) for p in rng.uniform(-50.0, 50.0, (12, 2))]
+    for x0, y0, x1, y1 in boxes:
+        grid = TexelGrid.of(mi.Float(x0), mi.Float(y0), mi.Float(x1), mi.Float(y1))
+        count = int(grid.count[0])
+        expected = (int(np.ceil(x1) - np.floor(x0)) * int(np.ceil(y1) - np.floor(y0))) if x1 > x0 and y1 > y0 else 0
+        assert count == expected, (x0, y0, x1, y1, count)
+        x, y, share = (np.array(v) for v in grid.texel(mi.Float(np.arange(max(count, 1), dtype=float))))
+        if count == 0:
+            continue
+        assert len({(a, b) for a, b in zip(x, y)}) == count  # each texel once
+        assert np.all((x + 1.0 > x0) & (x < x1) & (y + 1.0 > y0) & (y < y1))
+        assert np.all(share > 0.0)
+        np.testing.assert_allclose(share.sum(), (x1 - x0) * (y1 - y0), rtol=1e-5, atol=2e-5)  # float32
+
+
+#: Turned, sheared footprints whose probes cover few texels (under COVERED_TEXELS_BY_ROUGHNESS's).
+COVERED = [(6.0, 0.9, 0.35), (12.0, -0.5, 1.1)]
+
+
+@pytest.mark.parametrize("roughness", [0.05, 0.1, 0.2])
+@pytest.mark.parametrize("a,shear,rotation", COVERED)
+@pytest.mark.parametrize("pair", list(PAIRS))
+def test_probes_of_few_texels_shaded_texel_by_texel_are_the_fibre_level_mean(roughness, a, shear, rotation, pair):
+    """A probe shaded texel by texel is the fibre-level BSDF's mean over its boxes, with
+    visibility and without any stated approximation (no tables are read), and it does not
+    vary: the residual texels' noise is gone (the SAT means with residual texels vary
+    over the same probe)."""
+    params = dict(SATIN, roughness=roughness)
+    bsdf = mi.load_dict(params)
+    wi, wo = PAIRS[pair]
+    si = validation.sheared_interaction(20000, [0.3, 0.55], a, shear, N_TEXELS, wi, rotation=rotation)
+    fr = bsdf.fibre.frame(si, True)
+    counts = np.array(bsdf.estimator.footprint(si, fr, mi.Float(0.0), mi.Float(0.4)).covered_count())
+    assert np.all(counts <= 128) and np.all(counts >= 4), counts
+    covered, covered_err, boxes = validation.probe_expectation(bsdf, si, wo, probe=0.4, covered=True)
+    bf, bf_err = validation.probe_brute_force(params, boxes, N_TEXELS, wi, wo)
+    assert abs(covered - bf) <= 5.0 * bf_err + 1e-4 * abs(bf), (pair, covered, bf, bf_err)
+    _, sat_err, _ = validation.probe_expectation(bsdf, si, wo, probe=0.4)
+    assert covered_err <= 1e-6 * abs(covered) and sat_err > 0.0, (covered_err, sat_err)
+
+
+def test_only_probes_of_few_texels_of_shiny_cloth_are_shaded_texel_by_texel(monkeypatch):
+    """Through the BSDF (random shading hashes): shiny cloth's probes of few texels are
+    shaded texel by texel, those of more texels (and rough cloth's) by the SAT means and
+    residual texels, and the gradients' unrolled texels give the loop's values."""
+    from mscloth.bsdf.footprint_estimator import FootprintEstimator
+
+    assert mi.load_dict(dict(SATIN, roughness=0.4)).estimator.covered_texels() == 0
+    bsdf = mi.load_dict(dict(SATIN, roughness=0.1))
+    limit = bsdf.estimator.covered_texels()
+    assert limit > 0
+    wi, wo = PAIRS["grazing-across"]
+    ctx = non_delta_context()
+    wo_v = mi.Vector3f(wo) / np.linalg.norm(wo)
+    small = validation.sheared_interaction(4096, [0.3, 0.55], 6.0, 0.9, N_TEXELS, wi, rotation=0.35)
+    large = validation.footprint_interaction(4096, [0.3, 0.55], 20.0, N_TEXELS, wi)
+    fr = bsdf.fibre.frame(large, True)
+    assert np.all(np.array(bsdf.estimator.footprint(large, fr, mi.Float(0.0)).covered_count()) > limit)
+    # The unrolled texels (for callers whose gradients flow) and the loop agree.
+    from mscloth.bsdf.lobes import enabled_lobes
+
+    estimator = bsdf.estimator
+    enabled = enabled_lobes(ctx)
+    fr = bsdf.fibre.frame(small, True)
+    st = estimator.state(small, fr, enabled, fp=estimator.footprint(small, fr, mi.Float(0.0)))
+    looped, unrolled = (np.array(estimator.eval_pdf_covered(fr, st, fr.mirror(wo_v), enabled, unrolled=u)[0])
+                        for u in (False, True))
+    np.testing.assert_allclose(looped, unrolled, rtol=1e-5, atol=1e-7)
+    small_on, large_on = (np.array(bsdf.eval(ctx, si, wo_v)) for si in (small, large))
+    monkeypatch.setattr(FootprintEstimator, "COVERED_TEXELS", 0)
+    small_off, large_off = (np.array(bsdf.eval(ctx, si, wo_v)) for si in (small, large))
+    np.testing.assert_array_equal(large_on, large_off)
+    assert np.std(small_on[0]) < 0.5 * np.std(small_off[0])  # probes still vary; residual texels no more

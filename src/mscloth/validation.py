@@ -50,7 +50,7 @@ def footprint_expectation(bsdf, uv, half_texels, tile_texels, wi, wo, n=20000, s
     return float(v.mean()), float(v.std() / np.sqrt(n)), bool(np.array(st.fp.use)[0])
 
 
-def probe_expectation(bsdf, si, wo, seed=1, grid=None, exact=None, probe=None):
+def probe_expectation(bsdf, si, wo, seed=1, grid=None, exact=None, probe=None, covered=False):
     """(mean, standard error) of the red channel of the footprint eval over random residual
     texels, SAT corner rounding and probe choice, one per lane of ``si``, with the
     footprint shaded whole; and the probe boxes each lane shaded
@@ -58,7 +58,9 @@ def probe_expectation(bsdf, si, wo, seed=1, grid=None, exact=None, probe=None):
     (boxes, 4, n) of x0, y0, x1, y1 (empty boxes where a probe has fewer parts).
     ``grid``: G of the G x G residual texels, ``exact``: exact SAT corners (default: the
     estimator's own); ``probe``: a number in [0, 1) that picks one probe for every lane
-    (default: a random one each, as the pixel's samples spread over them)."""
+    (default: a random one each, as the pixel's samples spread over them); ``covered``:
+    the probe shaded texel by texel (:meth:`.FootprintEstimator.eval_pdf_covered`) instead,
+    over its exact boxes."""
     n = dr.width(si)
     enabled = enabled_lobes(non_delta_context())
     estimator = bsdf.estimator
@@ -67,9 +69,13 @@ def probe_expectation(bsdf, si, wo, seed=1, grid=None, exact=None, probe=None):
     xi = mi.Point2f(rng.random(n), rng.random(n))
     xi_round = mi.Point2f(rng.random(n), rng.random(n))
     fp = estimator.footprint(si, fr, mi.Float(0.0), mi.Float(rng.random(n) if probe is None else np.full(n, probe)))
-    exact = estimator.exact_corners() if exact is None else exact
+    exact = covered or (estimator.exact_corners() if exact is None else exact)
     st = estimator.state(si, fr, enabled, xi, xi_round, fp=fp, grid=grid, exact=exact)
-    v = np.array(estimator.eval(fr, st, fr.mirror(mi.Vector3f(_unit(wo))), enabled))[0]
+    wo_m = fr.mirror(mi.Vector3f(_unit(wo)))
+    if covered:
+        v = np.array(estimator.eval_pdf_covered(fr, st, wo_m, enabled)[0])[0]
+    else:
+        v = np.array(estimator.eval(fr, st, wo_m, enabled))[0]
     return float(v.mean()), float(v.std() / np.sqrt(n)), lane_boxes(estimator.shaded_boxes(fp, xi_round, exact)[0], n)
 
 

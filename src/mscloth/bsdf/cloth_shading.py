@@ -162,10 +162,12 @@ class ClothShading:
         estimator = self.estimator
         xi, xi_round, _ = hashed
 
-        def shade(grid=None, exact=None):
+        def shade(grid=None, exact=None, covered=False):
             st = estimator.state(si, fr, enabled, xi, xi_round, fp=fp, grid=grid, exact=exact)
 
             def eval_pdf(wo, unrolled):
+                if covered:
+                    return estimator.eval_pdf_covered(fr, st, wo, enabled, unrolled)
                 return estimator.eval_pdf(fr, st, wo, enabled, unrolled)
 
             sampled = estimator.sample(fr, st, enabled, *samples, active) if samples is not None else None
@@ -179,14 +181,22 @@ class ClothShading:
                     at_texel = (value, pdf, density)
             return self._evaluate(si, fr, eval_pdf, wos, sampled, at_texel)
 
+        small = shade
+        covered = estimator.covered_texels()
+        # Probes of few texels shaded texel by texel (a packet of larger ones skips it),
+        # except where gradients flow: there each texel would be a traced copy.
+        if covered > 0 and not self._gradients(si, fr, wos):
+            def small():
+                return branch(fp.covered_count() <= covered, (si, wos, samples),
+                              true_fn=lambda: shade(covered=True), false_fn=shade, label="cloth_covered_probe")
         large = estimator.large_probe_grid()
         if large is None:
-            return shade()
+            return small()
         # Large probes take a finer residual grid and rounded SAT corners (their rounding
         # noise is small); a packet of small ones skips the grid's texels.
         texels, grid = large
         return branch(fp.probe_texels() >= texels, (si, wos, samples), true_fn=lambda: shade(grid, False),
-                      false_fn=shade, label="cloth_large_probe")
+                      false_fn=small, label="cloth_large_probe")
 
     def _evaluate(self, si, fr: ViewFrame, eval_pdf, wos, sampled, at_sample=None):
         """(values, pdfs, sample record or ()) of a branch: ``eval_pdf`` at the directions

@@ -56,6 +56,50 @@ class Footprint:
         """Texels in the probe: its boxes' areas summed (empty parts add nothing)."""
         return box_areas(self.boxes)[1]
 
+    def covered_grids(self) -> list[TexelGrid]:
+        """The whole texels under each of the probe's boxes (:class:`TexelGrid`)."""
+        return [TexelGrid.of(*b) for b in self.boxes]
+
+    def covered_count(self):
+        """How many texels the probe's boxes cover, partly or whole (a texel under two
+        parts counts twice)."""
+        grids = self.covered_grids()
+        return sum((g.count for g in grids[1:]), grids[0].count)
+
+
+@dataclass
+class TexelGrid:
+    """The whole texels a box (x0, y0, x1, y1) covers, partly or whole: ``columns`` x
+    ``rows`` from texel (first_x, first_y) on (floats; none for an empty box)."""
+
+    box: tuple
+    first_x: mi.Float
+    first_y: mi.Float
+    columns: mi.Float
+    rows: mi.Float
+
+    @staticmethod
+    def of(x0, y0, x1, y1) -> TexelGrid:
+        fx, fy = dr.floor(x0), dr.floor(y0)
+        nonempty = (x1 > x0) & (y1 > y0)
+        return TexelGrid(box=(x0, y0, x1, y1), first_x=fx, first_y=fy,
+                         columns=dr.select(nonempty, dr.ceil(x1) - fx, 0.0),
+                         rows=dr.select(nonempty, dr.ceil(y1) - fy, 0.0))
+
+    @property
+    def count(self):
+        return self.columns * self.rows
+
+    def texel(self, k):
+        """(x, y, the texel's area under the box) of the ``k``-th texel (a float in
+        [0, count), row by row)."""
+        x0, y0, x1, y1 = self.box
+        row = dr.floor((k + 0.5) * dr.rcp(dr.maximum(self.columns, 1.0)))
+        x = self.first_x + (k - row * self.columns)
+        y = self.first_y + row
+        return x, y, ((dr.minimum(x1, x + 1.0) - dr.maximum(x0, x))
+                      * (dr.minimum(y1, y + 1.0) - dr.maximum(y0, y)))
+
 
 def box_areas(boxes):
     """Each box's (x0, y0, x1, y1) area, and their total (new values: a Dr.Jit ``+=`` would
@@ -198,8 +242,9 @@ class FootprintEstimator:
     #: bias 8e-6 throughout; whole-frame time per sample the same at G = 4 and 5, +10% at
     #: 6. In the middle (smaller probes) G = 4 for every probe bought -11% noise for +15%
     #: time. A symbolic branch, so the packets of small probes skip the finer grid's
-    #: texels (performance log L46).
-    LARGE_PROBE_GRIDS = ((0.15, 256.0, 5),)
+    #: texels (performance log L46). Since the middle's probes are shaded texel by texel
+    #: (COVERED_TEXELS_BY_ROUGHNESS), G = 6: far noise per sample -19% for +4% time (L53).
+    LARGE_PROBE_GRIDS = ((0.15, 256.0, 6),)
     #: (texels, G) for every roughness instead (experiments: LARGE_PROBE_TEXELS and
     #: LARGE_PROBE_GRID), or None.
     LARGE_PROBE_TEXELS = None
@@ -259,6 +304,17 @@ class FootprintEstimator:
     #: True or False for every roughness instead (experiments), or None.
     SAMPLE_AT_TEXEL = None
 
+    #: Probes whose boxes cover at most this many texels (partly or whole) are shaded by
+    #: every one of them, each weighted by its area under the boxes (:meth:`eval_pdf_covered`),
+    #: instead of by the SAT means and residual texels: the fibre-level mean over the boxes
+    #: itself, without the residual texels' noise, by the fibres' roughness: (below this
+    #: roughness, texels), first match; else none. On shiny cloth the residual texels were
+    #: most of the middle distance's noise, in probes of under 32 texels
+    #: (docs/performance-log.md L53).
+    COVERED_TEXELS_BY_ROUGHNESS = ((0.15, 128),)
+    #: The count for every roughness instead (experiments; 0: none), or None.
+    COVERED_TEXELS = None
+
     #: Sum the residual texels' terms in a symbolic loop (:meth:`eval_pdf`); False: one
     #: traced copy per texel (experiments; where gradients flow, always).
     LOOP_TEXELS = True
@@ -271,7 +327,7 @@ class FootprintEstimator:
               "SUB_PROBES_BY_ROUGHNESS", "SUB_PROBES", "SPLIT_BELOW_FIT", "SPLIT_BELOW_FIT_LARGE",
               "LARGE_PROBE_GRIDS", "LARGE_PROBE_TEXELS", "LARGE_PROBE_GRID",
               "EXACT_CORNERS_BY_ROUGHNESS", "EXACT_CORNERS", "SAMPLE_AT_TEXEL_BY_ROUGHNESS",
-              "SAMPLE_AT_TEXEL")
+              "SAMPLE_AT_TEXEL", "COVERED_TEXELS_BY_ROUGHNESS", "COVERED_TEXELS")
 
     def __init__(self, fibre: FibreBSDF, roughness: float):
         self.fibre = fibre
@@ -628,6 +684,11 @@ class FootprintEstimator:
         (SAMPLE_AT_TEXEL_BY_ROUGHNESS, or SAMPLE_AT_TEXEL if set)."""
         return bool(self._by_roughness(self.SAMPLE_AT_TEXEL, self.SAMPLE_AT_TEXEL_BY_ROUGHNESS, False))
 
+    def covered_texels(self) -> int:
+        """Probes covering at most this many texels are shaded texel by texel
+        (COVERED_TEXELS_BY_ROUGHNESS, or COVERED_TEXELS if set); 0: none."""
+        return int(self._by_roughness(self.COVERED_TEXELS, self.COVERED_TEXELS_BY_ROUGHNESS, 0))
+
     def exact_corners(self) -> bool:
         """Whether probes other than large ones read their SAT corners exactly
         (EXACT_CORNERS_BY_ROUGHNESS, or EXACT_CORNERS if set)."""
@@ -842,6 +903,86 @@ class FootprintEstimator:
 
         pdf = self._mixture_pdf(fr, st, wo, enabled, fold, pdf_spec * (1.0 / n))
         return dr.select(valid, value, 0.0), dr.select(valid, pdf, 0.0)
+
+    def eval_pdf_covered(self, fr: ViewFrame, st: FootprintState, wo, enabled, unrolled=False):
+        """(:meth:`eval`, :meth:`pdf`) at ``wo`` (mirrored frame) for a probe covering few
+        texels (:meth:`covered_texels`): the BSDF the mean of the fibre-level BSDF over the
+        probe's boxes, summed over every texel under them weighted by its area there (the
+        mean that the SAT means and residual texels estimate, without their noise); the
+        density the mixture's, as :meth:`eval_pdf`'s. Each texel's lobes as the fibre
+        level's (:meth:`.FibreBSDF.eval_pdf`), its own colour included; the sheen and the
+        fuzz over them once. A symbolic loop over the texels in JIT variants."""
+        fibre = self.fibre
+        fd = fibre.footprint_data
+        roughness, thickness = fibre.params.roughness, fibre.params.thickness
+        wi = fr.wi
+        cos_o = wo.z
+        up = cos_o > 0.0
+        valid = spongecake.directions_valid(wi, wo)
+        specular = enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]
+        cosine = dr.abs(cos_o) * dr.inv_pi
+        grids = st.fp.covered_grids()
+        counts = [g.count for g in grids]
+        total = sum(counts[1:], counts[0])
+        inv_area = dr.rcp(dr.maximum(st.fp.probe_texels(), 1e-30))
+        if specular:
+            h, h2, _, _ = self._half_vectors(wi, wo)
+            dirs = spongecake.SpecularDirections.of(wi, wo)
+            wi2, wo2 = dr.dot(wi, wi), dr.dot(wo, wo)
+        if fibre.use_visibility:
+            bins_i = fd.visibility_bins(fr.wi)
+            wo_up, back_o = fibre.outgoing_side(fr.flip, wo)
+            bins_o = fd.visibility_bins(wo_up)
+
+        def texel_lobes(k):
+            """The ``k``-th covered texel's yarn lobes times its yarn, visibility and share."""
+            grid, local, start = grids[0], k, counts[0]
+            x, y, share = grid.texel(local)
+            for g, c in zip(grids[1:], counts[1:]):
+                later = k >= start
+                gx, gy, g_share = g.texel(k - start)
+                x, y, share = dr.select(later, gx, x), dr.select(later, gy, y), dr.select(later, g_share, share)
+                start = start + c
+            pt = fibre.texel(fr, x + 0.5, y + 0.5)
+            k_t = pt.k
+            weight = share * inv_area * pt.yarn
+            if fibre.use_visibility:
+                vis = fd.texel_visibility(pt.ix, pt.iy)
+                weight *= (fd.visibility_in_bins(vis, bins_i, fr.flip) * fd.visibility_in_bins(vis, bins_o, back_o))
+            reflection = mi.Color3f(0.0)
+            transmission = mi.Color3f(0.0)
+            if specular:
+                t = pt.tangent
+                spec = spongecake.eval_specular_at(sggx.ndf(h, t, roughness, h2), sggx.projected_area(wi, t, roughness, wi2),
+                                                   sggx.projected_area(wo, t, roughness, wo2), dirs, thickness)
+                if enabled[SPECULAR_REFLECTION]:
+                    reflection += k_t.specular_albedo * spec
+                if enabled[SPECULAR_TRANSMISSION]:
+                    transmission += k_t.specular_transmittance * spec
+            if enabled[DIFFUSE_REFLECTION]:
+                reflection += k_t.diffuse_albedo * cosine
+            if enabled[DIFFUSE_TRANSMISSION]:
+                transmission += k_t.diffuse_transmittance * cosine
+            return weight * dr.select(up, reflection, transmission)
+
+        if unrolled or not dr.is_jit_v(mi.Float):
+            # One copy per texel up to the most any lane covers (which this reads back);
+            # the BSDF's shading takes the SAT means where gradients flow instead
+            # (:meth:`.ClothShading._footprint_branch`), so this is for direct callers.
+            yarn_lobes = mi.Color3f(0.0)
+            for k in range(int(dr.max(total)[0]) if dr.is_jit_v(mi.Float) else int(total)):
+                yarn_lobes += dr.select(k < total, texel_lobes(mi.Float(k)), 0.0)
+        else:
+            def body(k, sums):
+                return k + 1.0, sums + texel_lobes(k)
+
+            lanes = dr.width((total, wo))
+            _, yarn_lobes = dr.while_loop(state=(dr.zeros(mi.Float, lanes), dr.zeros(mi.Color3f, lanes)),
+                                          cond=lambda k, sums: k < total, body=body, labels=("k", "sums"),
+                                          label="cloth_covered_texels")
+        value, under_fuzz = fibre.sheen_and_fuzz(fr, wo, enabled)
+        value += under_fuzz * yarn_lobes
+        return dr.select(valid, value, 0.0), self.pdf(fr, st, wo, enabled, unrolled)
 
     @staticmethod
     def _half_vectors(wi, wo):
