@@ -222,20 +222,10 @@ class FibreBSDF:
         valid = spongecake.directions_valid(wi, wo)
         value, fuzz = self.sheen_and_fuzz(pt.frame, wo, enabled)
         under_fuzz = fuzz * yarn
-        reflection = mi.Color3f(0.0)
-        transmission = mi.Color3f(0.0)
+        spec = None
         if enabled[SPECULAR_REFLECTION] or enabled[SPECULAR_TRANSMISSION]:
             spec, _ = spongecake.eval_specular(wi, wo, t, p.roughness, p.thickness)
-            if enabled[SPECULAR_REFLECTION]:
-                reflection += k.specular_albedo * spec
-            if enabled[SPECULAR_TRANSMISSION]:
-                transmission += k.specular_transmittance * spec
-        cosine = dr.abs(cos_o) * dr.inv_pi
-        if enabled[DIFFUSE_REFLECTION]:
-            reflection += k.diffuse_albedo * cosine
-        if enabled[DIFFUSE_TRANSMISSION]:
-            transmission += k.diffuse_transmittance * cosine
-        yarn_lobes = dr.select(up, reflection, transmission)
+        yarn_lobes = self.yarn_lobes(k, spec, dr.abs(cos_o) * dr.inv_pi, up, enabled)
         if self.use_visibility:
             yarn_lobes *= self.visibility(pt, wo)
         value += under_fuzz * yarn_lobes
@@ -243,6 +233,24 @@ class FibreBSDF:
         pdf = dr.select(valid, self.samplers.pdf(p.roughness, wi, wo, probs, [t], enabled,
                                                             self.samplers.fold_share(k, enabled)), 0.0)
         return value, pdf
+
+    @staticmethod
+    def yarn_lobes(k, spec, cosine, up, enabled):
+        """The yarn's lobes (f |cos o|, before visibility and the fuzz above them) on the side
+        ``up`` tells, given albedos ``k``, the flakes' specular value ``spec`` (None when
+        no specular lobe is enabled) and |cos o| / pi ``cosine``."""
+        reflection = mi.Color3f(0.0)
+        transmission = mi.Color3f(0.0)
+        if spec is not None:
+            if enabled[SPECULAR_REFLECTION]:
+                reflection += k.specular_albedo * spec
+            if enabled[SPECULAR_TRANSMISSION]:
+                transmission += k.specular_transmittance * spec
+        if enabled[DIFFUSE_REFLECTION]:
+            reflection += k.diffuse_albedo * cosine
+        if enabled[DIFFUSE_TRANSMISSION]:
+            transmission += k.diffuse_transmittance * cosine
+        return dr.select(up, reflection, transmission)
 
     def sample(self, pt: Texel, probs, enabled, sample1, sample2, active, strata: int = 1):
         """A direction from the texel's lobe mixture: (wo, ok, component, gap_ok);

@@ -944,26 +944,16 @@ class FootprintEstimator:
                 x, y, share = dr.select(later, gx, x), dr.select(later, gy, y), dr.select(later, g_share, share)
                 start = start + c
             pt = fibre.texel(fr, x + 0.5, y + 0.5)
-            k_t = pt.k
             weight = share * inv_area * pt.yarn
             if fibre.use_visibility:
                 vis = fd.texel_visibility(pt.ix, pt.iy)
                 weight *= (fd.visibility_in_bins(vis, bins_i, fr.flip) * fd.visibility_in_bins(vis, bins_o, back_o))
-            reflection = mi.Color3f(0.0)
-            transmission = mi.Color3f(0.0)
+            spec = None
             if specular:
                 t = pt.tangent
                 spec = spongecake.eval_specular_at(sggx.ndf(h, t, roughness, h2), sggx.projected_area(wi, t, roughness, wi2),
                                                    sggx.projected_area(wo, t, roughness, wo2), dirs, thickness)
-                if enabled[SPECULAR_REFLECTION]:
-                    reflection += k_t.specular_albedo * spec
-                if enabled[SPECULAR_TRANSMISSION]:
-                    transmission += k_t.specular_transmittance * spec
-            if enabled[DIFFUSE_REFLECTION]:
-                reflection += k_t.diffuse_albedo * cosine
-            if enabled[DIFFUSE_TRANSMISSION]:
-                transmission += k_t.diffuse_transmittance * cosine
-            return weight * dr.select(up, reflection, transmission)
+            return weight * fibre.yarn_lobes(pt.k, spec, cosine, up, enabled)
 
         if unrolled or not dr.is_jit_v(mi.Float):
             # One copy per texel up to the most any lane covers (which this reads back);
