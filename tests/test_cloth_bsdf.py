@@ -109,6 +109,18 @@ def test_reciprocity(bsdf):
 def test_footprint_reciprocity(bsdf, half_texels):
     """The footprint BSDF is reciprocal too: the same footprint (and so the same residual
     texels and SAT rounding, which depend on uv and p only) with i and o swapped."""
+    check_footprint_reciprocity(bsdf, half_texels)
+
+
+@pytest.mark.parametrize("half_texels", [3.0, 12.0, 40.0])
+def test_shiny_footprint_reciprocity(half_texels):
+    """... and on shiny fibres, whose probes of few texels are shaded texel by texel
+    (3 and 12 texels: probes of ~36 and ~150 texels) and larger ones by exact SAT corners
+    and the finer residual grid."""
+    check_footprint_reciprocity(mi.load_dict(dict(CLOTH, roughness=0.1)), half_texels)
+
+
+def check_footprint_reciprocity(bsdf, half_texels):
     rng = np.random.default_rng(4)
     n = 50_000
     wi, wo = random_directions(rng, n), random_directions(rng, n)

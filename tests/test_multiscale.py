@@ -110,9 +110,13 @@ def test_chi2_footprint_sampling(wi, half):
     assert test.run(significance_level=0.01, test_count=len(CHI2_CASES)), test.messages
 
 
-def test_footprint_furnace_and_weights():
-    """Footprint sampling: mean weight (albedo, delta included) <= 1, and weight = eval/pdf."""
-    bsdf = mi.load_dict(dict(BASE, specular_albedo=0.6, diffuse_albedo=0.3, diffuse_transmittance=0.1))
+@pytest.mark.parametrize("roughness", [0.4, 0.1])
+def test_footprint_furnace_and_weights(roughness):
+    """Footprint sampling: mean weight (albedo, delta included) <= 1, and the sample's
+    density is eval_pdf's; on shiny fibres too, whose small probes are shaded texel by texel
+    and whose sampled direction is weighed at a texel."""
+    bsdf = mi.load_dict(dict(BASE, roughness=roughness, specular_albedo=0.6, diffuse_albedo=0.3,
+                             diffuse_transmittance=0.1))
     rng = np.random.default_rng(5)
     n = 200_000
     for half in (2.0, 30.0):
