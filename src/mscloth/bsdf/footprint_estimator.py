@@ -943,15 +943,17 @@ class FootprintEstimator:
                 gx, gy, g_share = g.texel(k - start)
                 x, y, share = dr.select(later, gx, x), dr.select(later, gy, y), dr.select(later, g_share, share)
                 start = start + c
-            pt = fibre.texel(fr, x + 0.5, y + 0.5)
+            pt = fibre.read_visibility(fibre.texel(fr, x + 0.5, y + 0.5))
             weight = share * inv_area * pt.yarn
             if fibre.use_visibility:
-                vis = fd.texel_visibility(pt.ix, pt.iy)
-                weight *= (fd.visibility_in_bins(vis, bins_i, fr.flip) * fd.visibility_in_bins(vis, bins_o, back_o))
+                # V(p, i) V(p, o) as FibreBSDF.visibility, with the directions' bins read once.
+                weight *= fd.visibility_in_bins(pt.vis, bins_i, fr.flip) * fd.visibility_in_bins(pt.vis, bins_o,
+                                                                                               back_o)
             spec = None
             if specular:
                 t = pt.tangent
-                spec = spongecake.eval_specular_at(sggx.ndf(h, t, roughness, h2), sggx.projected_area(wi, t, roughness, wi2),
+                spec = spongecake.eval_specular_at(sggx.ndf(h, t, roughness, h2),
+                                                   sggx.projected_area(wi, t, roughness, wi2),
                                                    sggx.projected_area(wo, t, roughness, wo2), dirs, thickness)
             return weight * fibre.yarn_lobes(pt.k, spec, cosine, up, enabled)
 
