@@ -5,6 +5,7 @@ sky seen in a shiny sphere). Multi-scale (one footprint of ``a`` texels) against
 
     .venv/bin/python bench/sampling_weights.py            # the satin scenes' BSDF
     .venv/bin/python bench/sampling_weights.py --fabric cotton-jersey
+    .venv/bin/python bench/sampling_weights.py --scene plane    # a built-in scene's first cloth
 """
 from __future__ import annotations
 
@@ -42,12 +43,18 @@ def main(argv=None) -> int:
     parser.add_argument("--set", action="append", default=[], help="NAME=VALUE cloth parameter")
     parser.add_argument("--n", type=int, default=1 << 17)
     parser.add_argument("--fabric", default=None, help="a fabric preset instead (uv_scale 1: footprints in its texels)")
+    parser.add_argument("--scene", default=None, help="a built-in scene's first cloth instead (uv_scale 1)")
     parser.add_argument("--texels", default="8,24,70,550,2200", help="footprint areas in texels")
     args = parser.parse_args(argv)
     mi = setup_mitsuba()
     from mscloth.scenes.builtin import SATIN_MAPS, scene_maps, _satin_cloth
 
-    if args.fabric:
+    if args.scene:
+        from eval_cost import cloth_dict
+        spec = dict(cloth_dict(args.scene), uv_scale=1.0)
+        spec.pop("uv_scale_v", None)
+        tile = mi.load_dict(spec).maps.resolution[1]
+    elif args.fabric:
         spec = {"type": "cloth", "fabric": args.fabric, "uv_scale": 1.0, "uv_scale_v": 1.0}
         tile = mi.load_dict(spec).maps.resolution[1]  # footprints in texels along u
     else:

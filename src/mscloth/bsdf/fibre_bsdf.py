@@ -145,7 +145,8 @@ class FibreBSDF:
         else:
             color = mi.Color3f(*gather_block(tile.color, start, 4, fr.active)[:3])
         tangent = mi.Vector3f(fibre[0], fibre[1], fr.sign * fibre[2])
-        return Texel(frame=fr, tangent=tangent, yarn=fibre[3], k=fr.k.with_yarn_albedo(color), ix=ix, iy=iy)
+        return Texel(frame=fr, tangent=tangent, yarn=fibre[3], k=fr.k.with_yarn_albedo(color), ix=ix, iy=iy,
+                     color=color)
 
     # ------------------------------------------------------------------
     # The lobe mixture at a texel

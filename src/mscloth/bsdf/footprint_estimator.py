@@ -163,6 +163,13 @@ def shading_hash(si):
     return mi.Point2f(unit(v0), unit(v1)), mi.Point2f(unit(v2), unit(v3)), unit24(low)
 
 
+def _channels(x):
+    """The three channels of a colour, or a Float three times."""
+    if isinstance(x, mi.Color3f):
+        return x[0], x[1], x[2]
+    return x, x, x
+
+
 def _table_tangent(fr: ViewFrame, tangent):
     """A texel's tangent (mirrored frame) back in the maps' frame of the tables."""
     return mi.Vector3f(tangent.x, tangent.y, fr.sign * tangent.z)
@@ -847,13 +854,25 @@ class FootprintEstimator:
             else:
                 base = d_yarn
 
-        def texel_terms(t_, vbar, v):
+        # Where the yarns' colours differ (denim's indigo warp and ecru weft), the colour
+        # correlates with D and visibility: the footprint's mean colour times the mean of
+        # the rest was biased (denim, direct sun). The residual then carries each texel's
+        # own colour against the mean colour times its control variate, whose mean is the
+        # base times the mean colour: unbiased again.
+        coloured = fibre.tile.uniform_yarn_colour is None
+        colors = [t_.color for t_ in texels] if coloured else None
+
+        def texel_terms(t_, vbar, v, color):
             """One residual texel's (specular residual, diffuse residual / n, specular pdf),
-            given its cluster visibility ``vbar`` and its own ``v`` (with visibility)."""
+            given its cluster visibility ``vbar``, its own ``v`` (with visibility) and its
+            yarn colour (where colours vary: the residuals then per channel, six Floats)."""
             residual = yarn_v = pdf_spec = mi.Float(0.0)
             if fibre.use_visibility:
                 if diffuse:
-                    yarn_v = t_.yarn * (v - vbar) * (1.0 / n)
+                    if coloured:
+                        yarn_v = t_.yarn * (color * v - yarn_albedo * vbar) * (1.0 / n)
+                    else:
+                        yarn_v = t_.yarn * (v - vbar) * (1.0 / n)
             if specular:
                 t = t_.tangent
                 d_h = sggx.ndf(h, t, roughness, h2)  # D is even: also the density's D(h)
@@ -865,40 +884,57 @@ class FootprintEstimator:
                 g = g_of(sigma_i, sggx.projected_area(wo, t, roughness, wo2))
                 if fibre.use_visibility:
                     vbar_spec = vbar if w_bar is None else dr.select(w_bar[0], vbar, w_bar[1])
-                    residual = d * v * g - d_bin * vbar_spec * g_bar
+                    own, control = d * v * g, d_bin * vbar_spec * g_bar
                 else:
-                    residual = d * g - d_bin * g_bar
+                    own, control = d * g, d_bin * g_bar
+                residual = color * own - yarn_albedo * control if coloured else own - control
                 pdf_spec = samplers.specular_pdf_from(half, wo, fold, d_h, sggx.ndf(half.folded, t, roughness, folded2),
                                                       sigma_i)
+            if coloured:
+                return (*_channels(residual), *_channels(yarn_v), pdf_spec)
             return residual, yarn_v, pdf_spec
 
-        residual, yarn_v, pdf_spec = self._texel_sums(texels, (vbar_p, v_p), texel_terms, 3,
-                                                      unrolled or not self.LOOP_TEXELS)
+        sums = self._texel_sums(texels, (vbar_p, v_p, colors), texel_terms, 7 if coloured else 3,
+                                unrolled or not self.LOOP_TEXELS)
+        if coloured:
+            residual, yarn_v, pdf_spec = mi.Color3f(*sums[:3]), mi.Color3f(*sums[3:6]), sums[6]
+        else:
+            residual, yarn_v, pdf_spec = sums
         value, under_fuzz = fibre.sheen_and_fuzz(fr, wo, enabled)
         reflection = mi.Color3f(0.0)
         transmission = mi.Color3f(0.0)
+        # The mean colour multiplies the whole estimate, or only the base and the control
+        # variates where the residual carries each texel's own.
+        tint = 1.0 if coloured else yarn_albedo
         if specular:
             # An unbiased control-variate estimate: it can dip below zero for the
             # residual texels (V(p) = 0 under a bright base); clamping it biased
             # grazing highlights by up to +90% (docs/performance-log.md L3), so we do not.
-            spec = base * g_bar + residual * (1.0 / n)
+            spec = base * g_bar
+            spec = (yarn_albedo * spec if coloured else spec) + residual * (1.0 / n)
             if enabled[SPECULAR_REFLECTION]:
-                reflection += k.specular_albedo * yarn_albedo * spec
+                reflection += k.specular_albedo * tint * spec
             if enabled[SPECULAR_TRANSMISSION]:
-                transmission += k.specular_transmittance * yarn_albedo * spec
+                transmission += k.specular_transmittance * tint * spec
         if diffuse:
             if fibre.use_visibility:
                 # Eq. 14 through the cluster histogram, plus the same residual texels.
-                yarn_visible = yarn_v
-                for c in range(fd.clusters):
-                    yarn_visible += st.cvis_i[c] * cvis_o[c] * st.fractions[c]
+                if coloured:
+                    cluster_visible = mi.Float(0.0)
+                    for c in range(fd.clusters):
+                        cluster_visible += st.cvis_i[c] * cvis_o[c] * st.fractions[c]
+                    yarn_visible = yarn_v + yarn_albedo * cluster_visible
+                else:
+                    yarn_visible = yarn_v
+                    for c in range(fd.clusters):
+                        yarn_visible += st.cvis_i[c] * cvis_o[c] * st.fractions[c]
             else:
-                yarn_visible = st.yarn_mean
+                yarn_visible, tint = st.yarn_mean, yarn_albedo
             cosine = dr.abs(cos_o) * dr.inv_pi * yarn_visible
             if enabled[DIFFUSE_REFLECTION]:
-                reflection += k.diffuse_albedo * yarn_albedo * cosine
+                reflection += k.diffuse_albedo * tint * cosine
             if enabled[DIFFUSE_TRANSMISSION]:
-                transmission += k.diffuse_transmittance * yarn_albedo * cosine
+                transmission += k.diffuse_transmittance * tint * cosine
         value += under_fuzz * dr.select(up, reflection, transmission)
 
         pdf = self._mixture_pdf(fr, st, wo, enabled, fold, pdf_spec * (1.0 / n))

@@ -94,6 +94,8 @@ class Texel:
     cluster: Any = None
     v_i: Any = None
     cvis_i: Any = None
+    #: The texel's yarn colour (RGB).
+    color: Any = None
 
     @property
     def wi(self):
