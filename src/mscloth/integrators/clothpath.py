@@ -37,7 +37,10 @@ the scene).
   footprints (``footprint_shading``: multi-scale ``cloth``) get the uv of the pixel centre
   (perspective and orthographic cameras), so a pixel is its footprint's average, and the
   camera sample's offset in its pixel (``pixel_offset`` of ``eval_pdf_sample_n``): the part
-  of the footprint that the sample stands for;
+  of the footprint that the sample stands for. So do hits behind straight crossings of
+  cloth gaps, which are still on the camera ray's line (seen through the pixel; shaded at
+  the sample's own uv with a footprint centred there, a pixel averaged them over twice
+  its width);
 * later hits: a ray cone whose width grows with distance and whose spread grows at each
   non-delta bounce by 2/sqrt(pi pdf) (see :mod:`mscloth.integrators.footprint`);
 * after a non-delta bounce (``scattered_footprints`` false, the default): a zero footprint,
@@ -90,16 +93,17 @@ Footprint convention: the footprint of a shading point is the UV parallelogram c
    * - uv_filter
      - string
      - ``box``
-     - The filter over the first hit's uv (textures and cloth; geometry stays box
-       filtered by the film's ``box``). ``box``: each pixel is the average over its own
-       footprint, which beats with weaves of about a pixel's period into moiré (rings,
-       fringes), in brute force as in multi-scale shading. ``tent``: a pixel is the
-       footprint average under box ⊗ tent, a quadratic B-spline as soft as Mitsuba's
-       default ``gaussian`` (its response at 1.3 cycles per pixel, where the box keeps
-       20%, is under 1%): each camera sample shades the point at the B-spline's quantile
-       of its place in the pixel, and a footprint-shading BSDF moves its probe by a tent
-       offset of up to a pixel in the pixel's uv frame. Two more sampler dimensions per
-       vertex (used at the first hit where a sample's place in its pixel is not known).
+     - The filter over the first hit's uv and those behind gap crossings (textures and
+       cloth; geometry stays box filtered by the film's ``box``). ``box``: each pixel is
+       the average over its own footprint, which beats with weaves of about a pixel's
+       period into moiré (rings, fringes), in brute force as in multi-scale shading.
+       ``tent``: a pixel is the footprint average under box ⊗ tent, a quadratic B-spline
+       as soft as Mitsuba's default ``gaussian`` (its response at 1.3 cycles per pixel,
+       where the box keeps 20%, is under 1%): each camera sample shades the point at the
+       B-spline's quantile of its place in the pixel, and a footprint-shading BSDF moves
+       its probe by a tent offset of up to a pixel in the pixel's uv frame. Two more
+       sampler dimensions per vertex (used at the first hit where a sample's place in its
+       pixel is not known).
    * - emitter_samples
      - integer
      - 1
@@ -399,13 +403,15 @@ def make_clothpath_class():
 
                 # ------------------------- Footprint -------------------------
                 first = s.depth == 0
+                # Still on the camera ray's line: only straight gap crossings before.
+                on_line = (s.gap_run == s.depth) if gaps else first
                 w_hit = fp.cone_width(s.cone_width, s.cone_spread, si.t)
                 c_dx, c_dy = fp.cone_footprint(w_hit, s_ray.d, si.n, si.dp_du, si.dp_dv)
                 if has_diff:
                     r_dx, r_dy = fp.differential_footprint(si.p, si.n, si.dp_du, si.dp_dv,
                                                            o_x, d_x, o_y, d_y)
-                    si.duv_dx = dr.select(first, r_dx, c_dx)
-                    si.duv_dy = dr.select(first, r_dy, c_dy)
+                    si.duv_dx = dr.select(on_line, r_dx, c_dx)
+                    si.duv_dy = dr.select(on_line, r_dy, c_dy)
                 else:
                     si.duv_dx = c_dx
                     si.duv_dy = c_dy
@@ -493,10 +499,10 @@ def make_clothpath_class():
                 si_shade = si_centred = si
                 pixel_offset = mi.Point2f(-1.0, -1.0)
                 if centring is not None:
-                    ox, oy, centre_ok = centring(si.p, first & si.is_valid())
+                    ox, oy, centre_ok = centring(si.p, on_line & si.is_valid())
                     centre = fp.centred_uv(si.uv, si.duv_dx, si.duv_dy, ox, oy)
                 if tent_filter:
-                    shift_ok = first & si.is_valid()
+                    shift_ok = on_line & si.is_valid()
                     jitter = tent_jitter
                     si_shade = mi.SurfaceInteraction3f(si)
                     si_shade.uv = dr.select(shift_ok, fp.centred_uv(si.uv, si.duv_dx, si.duv_dy, -jitter.x, -jitter.y),
