@@ -358,7 +358,20 @@ def test_first_hit_footprint_oblique_orthographic():
 # What the BSDF sees: a probe BSDF turns si.duv_dx / si.duv_dy into radiance
 # ----------------------------------------------------------------------------------------
 
-class FootprintProbe(mi.BSDF):
+class ZeroEval(mi.BSDF):
+    """A test BSDF whose eval and pdf are zero everywhere (delta lobes only, or none)."""
+
+    def eval(self, ctx, si, wo, active=True):
+        return mi.Color3f(0.0)
+
+    def pdf(self, ctx, si, wo, active=True):
+        return mi.Float(0.0)
+
+    def eval_pdf(self, ctx, si, wo, active=True):
+        return mi.Color3f(0.0), mi.Float(0.0)
+
+
+class FootprintProbe(ZeroEval):
     """Delta transmission (light passes straight through) with weight ``scale * h_u``, h_u the
     u half-width of the footprint the BSDF receives: seen against a sky of radiance 1, a
     pixel's value is ``scale * h_u`` at the probe, without noise."""
@@ -379,15 +392,6 @@ class FootprintProbe(mi.BSDF):
         bs.sampled_component = 0
         h_u = 0.5 * (dr.abs(si.duv_dx.x) + dr.abs(si.duv_dy.x))
         return bs, mi.Spectrum(self.scale * h_u) & active
-
-    def eval(self, ctx, si, wo, active):
-        return mi.Spectrum(0.0)
-
-    def pdf(self, ctx, si, wo, active):
-        return mi.Float(0.0)
-
-    def eval_pdf(self, ctx, si, wo, active):
-        return mi.Spectrum(0.0), mi.Float(0.0)
 
     def to_string(self):
         return "FootprintProbe[]"
@@ -767,7 +771,7 @@ def test_orthographic_centre_offset_recovers_the_film_position():
     np.testing.assert_allclose(np.array(oy), fy - 0.5, atol=2e-4)
 
 
-class UvProbe(mi.BSDF):
+class UvProbe(ZeroEval):
     """A footprint-shading BSDF that ends the path and reports what it was handed: its
     eval at every direction is (si.uv, pixel_offset.x)."""
 
@@ -788,46 +792,17 @@ class UvProbe(mi.BSDF):
     def sample(self, ctx, si, s1, s2, active=True):
         return dr.zeros(mi.BSDFSample3f), mi.Color3f(0.0)
 
-    def eval(self, ctx, si, wo, active=True):
-        return mi.Color3f(0.0)
-
-    def pdf(self, ctx, si, wo, active=True):
-        return mi.Float(0.0)
-
-    def eval_pdf(self, ctx, si, wo, active=True):
-        return mi.Color3f(0.0), mi.Float(0.0)
-
 
 mi.register_bsdf("uv_probe", lambda props: UvProbe(props))
 
 
-class OpenSheet(mi.BSDF):
+class OpenSheet(FootprintProbe):
     """A sheet of cloth that is all gap: light crosses it straight (a delta transmission of
     weight 1) and shadow rays cross it whole (``gap_transmission`` 1)."""
 
-    def __init__(self, props):
-        mi.BSDF.__init__(self, props)
-        flags = mi.BSDFFlags.DeltaTransmission | mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide
-        self.m_components = [flags]
-        self.m_flags = flags
-
     def sample(self, ctx, si, sample1, sample2, active=True):
-        bs = dr.zeros(mi.BSDFSample3f)
-        bs.wo = -si.wi
-        bs.pdf = 1.0
-        bs.eta = 1.0
-        bs.sampled_type = mi.UInt32(+mi.BSDFFlags.DeltaTransmission)
-        bs.sampled_component = 0
+        bs, _ = FootprintProbe.sample(self, ctx, si, sample1, sample2, active)
         return bs, mi.Color3f(1.0) & active
-
-    def eval(self, ctx, si, wo, active=True):
-        return mi.Color3f(0.0)
-
-    def pdf(self, ctx, si, wo, active=True):
-        return mi.Float(0.0)
-
-    def eval_pdf(self, ctx, si, wo, active=True):
-        return mi.Color3f(0.0), mi.Float(0.0)
 
     def gap_transmission(self, si, active=True):
         return mi.Float(1.0)
