@@ -12,31 +12,14 @@ from __future__ import annotations
 import argparse
 import sys
 
-import numpy as np
-
 from footprint_estimator import DIRECTIONS, SATIN
 
 
-def variance(bsdf, uv, half, tile, wi, wo, frozen, n, seed=1):
-    import mitsuba as mi
+def variance(bsdf, uv, half, tile, wi, wo, frozen, n):
+    """Variance of one footprint evaluation (red channel) with ``frozen`` numbers held."""
     from mscloth import validation
-    from mscloth.bsdf.lobes import enabled_lobes
-
-    si = validation.footprint_interaction(n, uv, half, tile, wi)
-    enabled = enabled_lobes(validation.non_delta_context())
-    fr = bsdf.fibre.frame(si, True)
-    rng = np.random.default_rng(seed)
-
-    def draw(name, dims):
-        values = [np.full(n, 0.5) if name in frozen else rng.random(n) for _ in range(dims)]
-        return values
-    xi = mi.Point2f(*draw("xi", 2))
-    xi_round = mi.Point2f(*draw("round", 2))
-    u_probe = mi.Float(*draw("probe", 1))
-    st = bsdf.estimator.state(si, fr, enabled, xi, xi_round, u_probe)
-    wo_m = fr.mirror(mi.Vector3f(validation._unit(wo)))
-    v = np.array(bsdf.estimator.eval(fr, st, wo_m, enabled))[0]
-    return float(v.var())
+    _, err, _ = validation.footprint_expectation(bsdf, uv, half, tile, wi, wo, n=n, frozen=frozen)
+    return err * err * n
 
 
 def main(argv=None) -> int:

@@ -33,17 +33,23 @@ def footprint_interaction(n: int, uv, half_texels: float, tile_texels: int, wi):
     return si
 
 
-def footprint_expectation(bsdf, uv, half_texels, tile_texels, wi, wo, n=20000, seed=1):
+def footprint_expectation(bsdf, uv, half_texels, tile_texels, wi, wo, n=20000, seed=1, frozen=()):
     """(mean, standard error, footprint used?) of the red channel of the footprint eval
     over uniformly placed control-variate residual texels, uniform SAT corner rounding and
-    probe choice, with the footprint shaded whole (the footprint branch, whatever its size)."""
+    probe choice, with the footprint shaded whole (the footprint branch, whatever its size).
+    ``frozen``: those of these random numbers ("xi", "round", "probe") held at 1/2 in every
+    lane (biased, but what the variance loses is their share)."""
     si = footprint_interaction(n, uv, half_texels, tile_texels, wi)
     enabled = enabled_lobes(non_delta_context())
     fr = bsdf.fibre.frame(si, True)
     rng = np.random.default_rng(seed)
-    xi = mi.Point2f(rng.random(n), rng.random(n))
-    xi_round = mi.Point2f(rng.random(n), rng.random(n))
-    u_probe = mi.Float(rng.random(n))
+
+    def draw(name):  # drawn whether frozen or not: the others stay the same numbers
+        u = rng.random(n)
+        return np.full(n, 0.5) if name in frozen else u
+    xi = mi.Point2f(draw("xi"), draw("xi"))
+    xi_round = mi.Point2f(draw("round"), draw("round"))
+    u_probe = mi.Float(draw("probe"))
     st = bsdf.estimator.state(si, fr, enabled, xi, xi_round, u_probe)
     value = bsdf.estimator.eval(fr, st, fr.mirror(mi.Vector3f(_unit(wo))), enabled)
     v = np.array(value)[0]
