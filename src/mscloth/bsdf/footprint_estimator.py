@@ -919,15 +919,10 @@ class FootprintEstimator:
         if diffuse:
             if fibre.use_visibility:
                 # Eq. 14 through the cluster histogram, plus the same residual texels.
-                if coloured:
-                    cluster_visible = mi.Float(0.0)
-                    for c in range(fd.clusters):
-                        cluster_visible += st.cvis_i[c] * cvis_o[c] * st.fractions[c]
-                    yarn_visible = yarn_v + yarn_albedo * cluster_visible
-                else:
-                    yarn_visible = yarn_v
-                    for c in range(fd.clusters):
-                        yarn_visible += st.cvis_i[c] * cvis_o[c] * st.fractions[c]
+                cluster_visible = mi.Float(0.0)
+                for c in range(fd.clusters):
+                    cluster_visible += st.cvis_i[c] * cvis_o[c] * st.fractions[c]
+                yarn_visible = yarn_v + (yarn_albedo * cluster_visible if coloured else cluster_visible)
             else:
                 yarn_visible, tint = st.yarn_mean, yarn_albedo
             cosine = dr.abs(cos_o) * dr.inv_pi * yarn_visible
