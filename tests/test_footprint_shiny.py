@@ -326,6 +326,9 @@ def test_only_shiny_cloth_reads_exact_corners_and_large_probes_keep_the_rounding
     wi, wo = PAIRS["grazing-across"]
     large = validation.sheared_interaction(4096, [0.3, 0.55], 60.0, 1.0, N_TEXELS, wi, rotation=0.35)
     middle = validation.sheared_interaction(4096, [0.3, 0.55], 12.0, 2.0, N_TEXELS, wi, rotation=0.35)
+    rng = np.random.default_rng(7)
+    for si in (large, middle):  # the shading hash's source: each lane its own probe, texels, rounding
+        si.p = mi.Point3f(*(mi.Float(rng.random(4096) * 10.0) for _ in range(3)))
     ctx, w = non_delta_context(), mi.Vector3f(wo) / np.linalg.norm(wo)
     exact = [np.array(bsdf.eval(ctx, si, w)) for si in (large, middle)]
     monkeypatch.setattr(FootprintEstimator, "EXACT_CORNERS_BY_ROUGHNESS", ())

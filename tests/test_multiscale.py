@@ -122,6 +122,8 @@ def test_footprint_furnace_and_weights(roughness):
     for half in (2.0, 30.0):
         for theta in (0.0, 45.0, 80.0):
             si = footprint_si(n, [0.41, 0.17], half, direction(theta, 33.0))
+            # The shading hash's source: each lane its own probe, residual texels and rounding.
+            si.p = mi.Point3f(*(mi.Float(rng.random(n) * 10.0) for _ in range(3)))
             ctx = mi.BSDFContext()
             bs, w = bsdf.sample(ctx, si, mi.Float(rng.random(n)), mi.Point2f(rng.random(n), rng.random(n)))
             w = np.array(w)
