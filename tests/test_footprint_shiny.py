@@ -520,7 +520,7 @@ def test_a_texel_grid_covers_its_box_exactly():
 COVERED = [(6.0, 0.9, 0.35), (12.0, -0.5, 1.1)]
 
 
-@pytest.mark.parametrize("roughness", [0.05, 0.1, 0.2])
+@pytest.mark.parametrize("roughness", [0.05, 0.1, 0.2, 0.33])  # 0.33: rough cloth's exact emitter directions
 @pytest.mark.parametrize("a,shear,rotation", COVERED)
 @pytest.mark.parametrize("pair", list(PAIRS))
 def test_probes_of_few_texels_shaded_texel_by_texel_are_the_fibre_level_mean(roughness, a, shear, rotation, pair):

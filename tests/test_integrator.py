@@ -1246,8 +1246,76 @@ def test_bsdfs_without_the_mis_argument_still_shade():
             calls.append(mis)
             return [1.0], [1.0], None, 1.0
 
+    class Newer(Old):
+        def eval_pdf_sample_n(self, ctx, si, wos, sample1, sample2, active=True, pixel_offset=None,
+                              pixel_filter="box", mis=True, exact_wos=None):
+            calls.append((mis, exact_wos))
+            return [1.0], [1.0], None, 1.0
+
     from mscloth.integrators import bsdf_contract as contract
-    contract.eval_pdf_sample_n(Old(), None, None, None, [None], 0.5, None, True, "offset", "box", False)
-    contract.eval_pdf_sample_n(New(), None, None, None, [None], 0.5, None, True, "offset", "box", False)
-    contract.eval_pdf_sample_n(New(), None, None, None, [None], 0.5, None, True, "offset", "box", True)
-    assert calls == ["offset", False, True]
+    contract.eval_pdf_sample_n(Old(), None, None, None, [None], 0.5, None, True, "offset", "box", mis=False)
+    contract.eval_pdf_sample_n(New(), None, None, None, [None], 0.5, None, True, "offset", "box", mis=False)
+    contract.eval_pdf_sample_n(New(), None, None, None, [None], 0.5, None, True, "offset", "box", mis=True)
+    # exact_wos (a Float from clothpath: 1 where exact) reaches only BSDFs that take it, as a mask.
+    contract.eval_pdf_sample_n(Old(), None, None, None, [None], 0.5, None, True, "offset", "box", 1.0)
+    contract.eval_pdf_sample_n(New(), None, None, None, [None], 0.5, None, True, "offset", "box", 1.0, mis=False)
+    contract.eval_pdf_sample_n(Newer(), None, None, None, [None], 0.5, None, True, "offset", "box", 1.0, mis=False)
+    contract.eval_pdf_sample_n(Newer(), None, None, None, [None], 0.5, None, True, "offset", "box", 0.0)
+    assert calls == ["offset", False, True, "offset", False, (False, True), (True, False)]
+
+
+class ExactProbe(ZeroEval):
+    """A footprint-shading BSDF that ends the path and reports whether clothpath marked its
+    emitter directions exact: its eval there is (exact_wos, whether exact_wos came, 0)."""
+
+    footprint_shading = True
+
+    def __init__(self, props):
+        mi.BSDF.__init__(self, props)
+        self.m_flags = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
+        self.m_components = [self.m_flags]
+
+    def eval_pdf_sample_n(self, ctx, si, wos, s1, s2, active=True, pixel_offset=None, pixel_filter="box",
+                          mis=True, exact_wos=None):
+        bs = dr.zeros(mi.BSDFSample3f)
+        bs.wo = mi.Vector3f(0, 0, 1)
+        bs.pdf = 0.0  # end the path here
+        given = exact_wos is not None
+        colour = mi.Color3f(dr.select(exact_wos, 1.0, 0.0) if given else 0.0, 1.0 if given else 0.0, 0.0)
+        return [colour for _ in wos], [mi.Float(0.0) for _ in wos], bs, mi.Color3f(0.0)
+
+    def sample(self, ctx, si, s1, s2, active=True):
+        return dr.zeros(mi.BSDFSample3f), mi.Color3f(0.0)
+
+
+mi.register_bsdf("exact_probe", lambda props: ExactProbe(props))
+
+
+@pytest.mark.parametrize("sun_cos,sky,exact,given", [
+    (1.0, 0.01, 1.0, 1.0),   # a sun over a dim sky: its direction carries the light
+    (1.0, 0.1, 0.0, 0.0),    # 1 < 4 pi 0.1: no lane can be exact, nothing is handed over
+    (0.5, 0.05, 0.0, 1.0),   # the sun could (1 > 4 pi 0.05), but at 60 degrees it does not
+    (0.5, 0.0, 1.0, 1.0),    # no sky at all
+])
+def test_emitter_directions_are_exact_where_a_sun_outshines_the_sky(sun_cos, sky, exact, given):
+    """clothpath marks a first hit's emitter directions exact (``exact_wos``) where the delta
+    emitters' irradiance there exceeds EXACT_EMITTER_RATIO x pi x the environment's mean
+    radiance, and hands footprint BSDFs no mark where no lane can be."""
+    from mscloth.integrators.clothpath import EXACT_EMITTER_RATIO, environment_radiance
+    assert EXACT_EMITTER_RATIO == 4.0  # the cases above are set for it
+    env = mi.load_dict({"type": "constant", "radiance": {"type": "rgb", "value": [0.5, 0.58, 0.72]}})
+    assert environment_radiance(env) == pytest.approx(float(mi.luminance(mi.Color3f(0.5, 0.58, 0.72))[0]), rel=1e-5)
+    assert environment_radiance(None) == 0.0
+    look = mi.ScalarTransform4f().look_at(origin=[0, 0, 3], target=[0, 0, 0], up=[0, 1, 0])
+    sine = float(np.sqrt(1.0 - sun_cos ** 2))
+    scene = {"type": "scene", "integrator": {"type": "clothpath", "max_depth": 2},
+             "sensor": {"type": "perspective", "fov": 20, "to_world": look,
+                        "film": {"type": "hdrfilm", "width": 4, "height": 4, "rfilter": {"type": "box"}},
+                        "sampler": {"type": "independent"}},
+             "plane": {"type": "rectangle", "bsdf": {"type": "exact_probe"}},
+             "sun": {"type": "directional", "direction": [sine, 0.0, -sun_cos], "irradiance": 1.0}}
+    if sky > 0.0:
+        scene["sky"] = {"type": "constant", "radiance": sky}
+    image = np.array(mi.render(mi.load_dict(scene), spp=4))
+    np.testing.assert_allclose(image[..., 0], exact, atol=1e-6)  # the probe's value times irradiance 1
+    np.testing.assert_allclose(image[..., 1], given, atol=1e-6)

@@ -580,3 +580,47 @@ def test_footprint_means_are_means_and_lobe_choices_a_distribution(monkeypatch):
     probs = np.array([np.array(p) for p in st.probs])[:, use]
     assert probs.min() >= 0.0
     np.testing.assert_allclose(probs.sum(axis=0), 1.0, atol=1e-5)
+
+
+def test_emitter_directions_marked_exact_shade_rough_probes_texel_by_texel(monkeypatch):
+    """Where clothpath marks a first hit's emitter directions exact (``exact_wos``: a sun over
+    a dim sky), rough cloth's probes of few texels are shaded texel by texel there: one
+    probe, one value, the mean the SAT means and residual texels estimate; lanes not marked
+    keep the SAT estimate, and the sampled direction keeps it either way."""
+    from mscloth.bsdf.footprint_estimator import FootprintEstimator
+
+    bsdf = mi.load_dict(dict(BASE, roughness=0.33))
+    estimator = bsdf.estimator
+    limit = estimator.emitter_covered_texels()
+    assert limit > 0 and estimator.covered_texels() == 0
+    n = 8192
+    wi, wo = (unit(d) for d in DIRECTIONS[1])
+    si = footprint_si(n, [0.3, 0.55], 3.0, wi)
+    rng = np.random.default_rng(9)
+    si.p = mi.Point3f(*(mi.Float(rng.random(n) * 10.0) for _ in range(3)))
+    # Every lane's probe the same (the hash's probe number held); its residual texels and
+    # rounding its own.
+    hashed = FootprintEstimator.shading_hash
+
+    def one_probe(self, s):
+        xi, xi_round, _ = hashed(self, s)
+        return xi, xi_round, mi.Float(np.full(n, 0.4))
+
+    monkeypatch.setattr(FootprintEstimator, "shading_hash", one_probe)
+    fr = bsdf.fibre.frame(si, True)
+    counts = np.array(estimator.footprint(si, fr, mi.Float(0.0)).covered_count())
+    assert np.all((counts >= 4) & (counts <= limit)), counts
+    enabled = enabled_lobes(non_delta_context())
+    samples = (mi.Float(rng.random(n)), mi.Point2f(rng.random(n), rng.random(n)))
+    marked = mi.Bool(np.arange(n) % 2 == 0)
+    values, _, (bs, weight) = bsdf.shading.shade(enabled, si, [mi.Vector3f(wo)], samples, True, exact_wos=marked)
+    plain, _, (bs0, weight0) = bsdf.shading.shade(enabled, si, [mi.Vector3f(wo)], samples, True)
+    v, v0 = np.array(values[0])[0], np.array(plain[0])[0]
+    exact, rest = v[0::2], v[1::2]
+    assert np.std(exact) < 1e-5 * np.mean(exact), np.std(exact)  # one probe, one value
+    assert np.std(v0) > 1e-3 * np.mean(v0), np.std(v0)  # the SAT estimate varies
+    np.testing.assert_array_equal(rest, v0[1::2])
+    # Both estimate the same mean over the probe.
+    assert abs(np.mean(exact) - np.mean(v0)) <= 5.0 * np.std(v0) / np.sqrt(n) + 1e-6, (np.mean(exact), np.mean(v0))
+    np.testing.assert_allclose(np.array(bs.wo), np.array(bs0.wo), rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(np.array(weight), np.array(weight0), rtol=1e-5, atol=1e-7)

@@ -233,15 +233,16 @@ def make_cloth_class():
             return self.eval_pdf(ctx, si, wo, active)[1]
 
         def eval_pdf_sample_n(self, ctx, si, wos, sample1, sample2, active=True, pixel_offset=None,
-                              pixel_filter="box", mis=True):
+                              pixel_filter="box", mis=True, exact_wos=None):
             """eval_pdf at every direction of ``wos`` and one sample, sharing one footprint
             state (SAT means, visibilities, the sampling mixture: all independent of the
             outgoing direction). Called by ``clothpath`` through ``dr.dispatch``, which
             passes the camera sample's ``pixel_offset`` at first hits, its
-            ``pixel_filter``, and ``mis`` False where no MIS reads the sample's density
+            ``pixel_filter``, ``mis`` False where no MIS reads the sample's density and
+            ``exact_wos`` where the emitters' directions carry most of the light
             (:meth:`.ClothShading.shade`)."""
             values, pdfs, (bs, weight) = self.shading.shade(enabled_lobes(ctx), si, wos, (sample1, sample2),
-                                                            active, pixel_offset, pixel_filter, mis)
+                                                            active, pixel_offset, pixel_filter, mis, exact_wos)
             return values, pdfs, bs, weight
 
         def eval_pdf_sample(self, ctx, si, wo, sample1, sample2, active=True):

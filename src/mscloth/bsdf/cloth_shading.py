@@ -86,7 +86,8 @@ class ClothShading:
         self.fibre = fibre
         self.estimator = estimator
 
-    def shade(self, enabled, si, wos, samples, active, pixel_offset=None, pixel_filter="box", mis=True):
+    def shade(self, enabled, si, wos, samples, active, pixel_offset=None, pixel_filter="box", mis=True,
+              exact_wos=None):
         """eval_pdf at the world-frame directions ``wos`` and, if ``samples`` =
         (sample1, sample2) is given, one sample: ([values], [pdfs], (bs, weight) or ()).
         ``pixel_offset``: the sample's offset from its pixel's centre, in pixels along
@@ -95,7 +96,10 @@ class ClothShading:
         fibre-level point; ``pixel_filter``: the filter over the pixel (``box`` or ``tent``,
         ``clothpath``'s ``uv_filter``) that places them; ``mis`` False: the sample's density
         is read only for its sign, and shiny footprints report the one given the texel
-        that weighs the sample instead of the mixture's (:meth:`.FootprintEstimator.pdf`).
+        that weighs the sample instead of the mixture's (:meth:`.FootprintEstimator.pdf`);
+        ``exact_wos`` (a mask, or None): lanes whose directions ``wos`` carry most of the
+        light, where rough cloth's probes of few texels are shaded texel by texel at them
+        (:meth:`.FootprintEstimator.emitter_covered_texels`).
 
         Footprints of a texel or more take the multi-scale branch, smaller ones the
         fibre-level one; a symbolic if, so a packet of lanes that all take one branch
@@ -110,7 +114,8 @@ class ClothShading:
             hashed, fp = self._hashed_footprint(si, fr)
             values, pdfs, record = branch(
                 fp.use, (si, wos, samples),
-                true_fn=lambda: self._footprint_branch(si, fr, enabled, wos, samples, active, fp, hashed, mis),
+                true_fn=lambda: self._footprint_branch(si, fr, enabled, wos, samples, active, fp, hashed, mis,
+                                                       exact_wos),
                 false_fn=lambda: self._point_branch(si, fr, enabled, wos, samples, active, fp, hashed[0]),
                 label="cloth_footprint")
         values = [dr.select(active, v, 0.0) for v in values]
@@ -156,17 +161,18 @@ class ClothShading:
             sampled = (wo, ok, component, gap_ok, probs[GAP], fibre.gap_value(fr, pt.yarn))
         return self._evaluate(si, fr, eval_pdf, wos, sampled)
 
-    def _footprint_branch(self, si, fr: ViewFrame, enabled, wos, samples, active, fp, hashed, mis=True):
+    def _footprint_branch(self, si, fr: ViewFrame, enabled, wos, samples, active, fp, hashed, mis=True,
+                          exact_wos=None):
         """The same for the footprint BSDF (multi-scale shading) of footprint ``fp``,
         with the shading hash ``hashed`` it came from."""
         estimator = self.estimator
         xi, xi_round, _ = hashed
 
-        def shade(grid=None, exact=None, covered=False):
+        def shade(grid=None, exact=None, covered=False, emitters_covered=False):
             st = estimator.state(si, fr, enabled, xi, xi_round, fp=fp, grid=grid, exact=exact)
 
             def eval_pdf(wo, unrolled):
-                if covered:
+                if covered or emitters_covered:
                     return estimator.eval_pdf_covered(fr, st, wo, enabled, unrolled)
                 return estimator.eval_pdf(fr, st, wo, enabled, unrolled)
 
@@ -179,10 +185,20 @@ class ClothShading:
                     # (Where gradients flow the pdf's texel loop unrolls, as eval_pdf's.)
                     density = estimator.pdf(fr, st, sampled[0], enabled, self._gradients(si, fr)) if mis else pdf
                     at_texel = (value, pdf, density)
+                elif emitters_covered:
+                    value, pdf = estimator.eval_pdf(fr, st, sampled[0], enabled)
+                    at_texel = (value, pdf, pdf)
             return self._evaluate(si, fr, eval_pdf, wos, sampled, at_texel)
 
         small = shade
         covered = estimator.covered_texels()
+        emitter_covered = estimator.emitter_covered_texels()
+        if (covered == 0 and emitter_covered > 0 and exact_wos is not None and wos
+                and not self._gradients(si, fr, wos)):
+            def small():
+                return branch(exact_wos & (fp.covered_count() <= emitter_covered), (si, wos, samples),
+                              true_fn=lambda: shade(emitters_covered=True), false_fn=shade,
+                              label="cloth_covered_emitters")
         # Probes of few texels shaded texel by texel (a packet of larger ones skips it),
         # except where gradients flow: there each texel would be a traced copy.
         if covered > 0 and not self._gradients(si, fr, wos):

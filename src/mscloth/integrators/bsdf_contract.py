@@ -33,7 +33,7 @@ class FootprintBSDF(Protocol):
     footprint_shading: bool
 
     def eval_pdf_sample_n(self, ctx, si, wos, sample1, sample2, active=True, pixel_offset=None,
-                          pixel_filter="box", mis=True):
+                          pixel_filter="box", mis=True, exact_wos=None):
         """``([value], [pdf], bs, weight)``: ``eval_pdf`` (times cos) at each direction of
         ``wos`` (local frame) and one ``sample``, sharing the work of one shading point.
         ``pixel_offset`` (``footprint_shading`` BSDFs only, at first hits): the camera
@@ -43,8 +43,12 @@ class FootprintBSDF(Protocol):
         the pixel that the offset places the sample in; ``mis`` (optional parameter)
         False: the caller uses the sample's ``bs.pdf`` only where it is positive (no MIS
         at the next hit, no ray cone from it), so a BSDF may report there the density
-        given choices its weight depends on, if that is cheaper. Must use
-        ``sample1``/``sample2`` as ``sample`` would (same random-number order)."""
+        given choices its weight depends on, if that is cheaper; ``exact_wos`` (optional
+        parameter; a mask per lane, first hits only): the directions of ``wos`` (delta
+        emitters' there) carry most of the light and no sampling noise of their own, so a
+        BSDF's own noise at them is most of the pixel's: worth evaluating them with less,
+        at more cost. Must use ``sample1``/``sample2`` as ``sample`` would (same
+        random-number order)."""
 
     def footprint_texels(self, si, active=True):
         """``(width_u, width_v)``: the footprint's full widths in texels of the BSDF's
@@ -78,18 +82,25 @@ def has_gap_transmission(bsdf) -> bool:
 
 
 def eval_pdf_sample_n(bsdf, ctx, si, si_centred, wos, sample1, sample2, active=True, pixel_offset=None,
-                      pixel_filter="box", mis=True):
+                      pixel_filter="box", exact_wos=None, mis=True):
     """eval_pdf at each direction of ``wos`` and one sample: ([values], [pdfs], bs, weight).
 
     BSDFs with their own ``eval_pdf_sample_n`` (``cloth``) share the work of one shading
     point between all directions; those that shade whole footprints see ``si_centred``
     (uv at the pixel centre on first hits), ``pixel_offset``, ``pixel_filter`` and, where
-    their method takes it, ``mis``. Others get eval_pdf / sample calls on ``si`` (one
-    direction: eval_pdf_sample, exactly as ``path``)."""
+    their method takes them, ``mis`` and ``exact_wos``. Others get eval_pdf / sample calls
+    on ``si`` (one direction: eval_pdf_sample, exactly as ``path``)."""
     if shades_footprints(bsdf):
-        if not mis and "mis" in inspect.signature(bsdf.eval_pdf_sample_n).parameters:
+        parameters = inspect.signature(bsdf.eval_pdf_sample_n).parameters
+        extra = {}
+        if not mis and "mis" in parameters:
+            extra["mis"] = mis
+        if exact_wos is not None and "exact_wos" in parameters:
+            # (clothpath hands it over as a Float: dr.dispatch takes a Bool for its mask.)
+            extra["exact_wos"] = exact_wos if isinstance(exact_wos, (bool, mi.Bool)) else exact_wos > 0.5
+        if extra:
             return bsdf.eval_pdf_sample_n(ctx, si_centred, wos, sample1, sample2, active, pixel_offset, pixel_filter,
-                                          mis)
+                                          **extra)
         if pixel_filter == "box":  # (the arguments came later: BSDFs without them still work)
             return bsdf.eval_pdf_sample_n(ctx, si_centred, wos, sample1, sample2, active, pixel_offset)
         return bsdf.eval_pdf_sample_n(ctx, si_centred, wos, sample1, sample2, active, pixel_offset, pixel_filter)

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from ..errors import ParameterError
 from ..lanes import logical_not
@@ -243,6 +244,69 @@ def _is_uniform(emitter):
     return emitter is not None and emitter.class_name() == "ConstantBackgroundEmitter"
 
 
+#: A first hit's emitter directions are "exact" (``eval_pdf_sample_n``'s ``exact_wos``)
+#: where the delta emitters' irradiance there exceeds this many times pi times the
+#: environment's radiance above the surface: their light, which has no sampling noise of
+#: its own, is then most of the pixel's, and a footprint BSDF's own noise in it most of
+#: the pixel's noise (docs/performance-log.md L56).
+EXACT_EMITTER_RATIO = 4.0
+
+
+def environment_radiance(env, n: int = 256) -> float:
+    """The mean luminance of environment emitter ``env`` over the sphere (``n`` spiral
+    directions; 0 without one): a scene's sky for :func:`exact_emitter_directions`."""
+    if env is None:
+        return 0.0
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
+    phi = i * 2.399963229728653  # the golden angle
+    directions = np.stack([r * np.cos(phi), r * np.sin(phi), z])
+    with dr.suspend_grad():
+        if dr.is_jit_v(mi.Float):
+            si = dr.zeros(mi.SurfaceInteraction3f, n)
+            si.wi = -mi.Vector3f(*(mi.Float(d) for d in directions))
+            return float(np.mean(np.array(mi.luminance(env.eval(si)))))
+        total = 0.0
+        for d in directions.T:
+            si = dr.zeros(mi.SurfaceInteraction3f)
+            si.wi = -mi.Vector3f(*(float(v) for v in d))
+            total += float(mi.luminance(env.eval(si)))
+        return total / n
+
+
+def exact_emitters_possible(emitters, sky: float) -> bool:
+    """Whether :func:`exact_emitter_directions` can hold anywhere: a delta emitter other than
+    a directional one (whose irradiance grows without bound near it), or directional ones
+    whose irradiance together (at normal incidence, unshadowed) exceeds
+    EXACT_EMITTER_RATIO x pi x ``sky``. Where not, the BSDFs get no ``exact_wos`` and
+    trace no branch for it."""
+    irradiance = 0.0
+    for e in emitters:
+        if not mi.has_flag(e.flags(), mi.EmitterFlags.Delta):
+            continue
+        if e.class_name() != "DirectionalEmitter":
+            return True
+        with dr.suspend_grad():
+            it = dr.zeros(mi.Interaction3f) if not dr.is_jit_v(mi.Float) else dr.zeros(mi.Interaction3f, 1)
+            _, weight = e.sample_direction(it, mi.Point2f(0.5, 0.5))
+            lum = mi.luminance(weight)
+            irradiance += float(lum if not dr.is_jit_v(mi.Float) else np.array(lum)[0])
+    return irradiance > EXACT_EMITTER_RATIO * np.pi * sky
+
+
+def exact_emitter_directions(em_samples, sky: float, active):
+    """Per lane: whether the delta emitters' samples among ``em_samples`` ((ds, weight,
+    active, local direction) each) bring more than EXACT_EMITTER_RATIO x pi x ``sky``
+    (the environment's mean luminance, :func:`environment_radiance`): an irradiance
+    against the one a uniform sky of that radiance would give."""
+    irradiance = mi.Float(0.0)
+    for ds, weight, em_active, wo in em_samples:
+        if ds is not None:
+            irradiance += dr.select(em_active & ds.delta, mi.luminance(weight) * dr.abs(wo.z), 0.0)
+    return active & (irradiance > EXACT_EMITTER_RATIO * dr.pi * sky)
+
+
 def sample_density_needed(emitters, scattered_footprints: bool) -> bool:
     """Whether a BSDF sample's density is read beyond its sign: for MIS where a path may
     hit an emitter that is also sampled (a non-delta one among ``emitters``, those the
@@ -370,6 +434,11 @@ def make_clothpath_class():
                                         mis=sample_density_needed(emitters, scattered_footprints))
             n_em = self.emitter_samples
             env = opaque_environment(scene) if jit else None
+            # Whether a delta emitter (a sun) may make a first hit's emitter directions
+            # most of its light (exact_emitter_directions).
+            any_delta = any(mi.has_flag(e.flags(), mi.EmitterFlags.Delta) for e in emitters)
+            sky = environment_radiance(scene.environment()) if any_delta else 0.0
+            exact_possible = any_delta and exact_emitters_possible(emitters, sky)
             gap_bsdfs = gap_shadows.gap_bsdfs(scene) if self.gap_shadows else []
             gaps = bool(gap_bsdfs)
             # Offsets of camera samples from their pixel centres (perspective and
@@ -516,15 +585,20 @@ def make_clothpath_class():
                         by = quadratic_bspline_quantile(oy + 0.5)
                         si_shade.uv = dr.select(shift_ok & centre_ok,
                                                 fp.centred_uv(centre, si.duv_dx, si.duv_dy, -bx, -by), si_shade.uv)
+                # A Float (1: exact): dr.dispatch takes a Bool argument for the call's mask.
+                exact_wos = None
+                if exact_possible:
+                    exact_wos = dr.select(exact_emitter_directions(em_samples, sky, on_line & active_next), 1.0, 0.0)
                 if centring is not None:
                     si_centred = mi.SurfaceInteraction3f(si)
                     si_centred.uv = dr.select(centre_ok, centre, si_shade.uv)
                     pixel_offset = dr.select(centre_ok, mi.Point2f(ox, oy), pixel_offset)
                 # Lanes whose path ends here skip the BSDF (as path.cpp masks it with
                 # active_next): a footprint shading is costly, and its result unused.
+                exact_arg = () if exact_wos is None else (exact_wos,)
                 bsdf_vals, bsdf_pdfs, bsdf_sample, bsdf_weight = contract.call(
                     bsdf, shade_n, bsdf_ctx, si_shade, si_centred, wos, sample_1, sample_2,
-                    True, pixel_offset, self.uv_filter, active=active_next)
+                    True, pixel_offset, self.uv_filter, *exact_arg, active=active_next)
 
                 # ---------------- Emitter sampling contribution ---------------
                 for (ds, em_weight, em_active, wo), bsdf_val, bsdf_pdf in zip(em_samples, bsdf_vals, bsdf_pdfs):
