@@ -100,3 +100,18 @@ def footprint_chi2_adapter(bsdf: dict, wi, uv, ctx, half_texels: float):
         return plugin.pdf(ctx, make(dr.width(wo)), wo)
 
     return sample_func, pdf_func
+
+
+def hold_probe(monkeypatch, lanes: int, u: float = 0.4):
+    """Hold the footprint estimator's probe number at ``u`` in every one of ``lanes`` lanes
+    (the shading hash's third number), leaving each lane's residual texels and rounding
+    its own: every lane then shades the same probe."""
+    from mscloth.bsdf.footprint_estimator import FootprintEstimator
+
+    hashed = FootprintEstimator.shading_hash
+
+    def one_probe(self, si):
+        xi, xi_round, _ = hashed(self, si)
+        return xi, xi_round, mi.Float(np.full(lanes, u))
+
+    monkeypatch.setattr(FootprintEstimator, "shading_hash", one_probe)

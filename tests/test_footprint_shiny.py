@@ -13,7 +13,7 @@ import pytest
 import mscloth
 from mscloth import validation
 
-from cloth_fixtures import N_TEXELS, direction, footprint_chi2_adapter, non_delta_context
+from cloth_fixtures import N_TEXELS, direction, footprint_chi2_adapter, hold_probe, non_delta_context
 
 mscloth.register()
 
@@ -269,7 +269,7 @@ def test_only_large_probes_of_shiny_cloth_take_the_finer_grid(monkeypatch):
     large = validation.sheared_interaction(20000, [0.3, 0.55], 60.0, 1.0, N_TEXELS, wi, rotation=0.35)
     small = validation.footprint_interaction(4096, [0.3, 0.55], 0.25 * float(np.sqrt(texels)), N_TEXELS, wi)
     rng = np.random.default_rng(6)  # each small lane its own shading hash
-    small.p = mi.Point3f(*(mi.Float(rng.random(4096) * 10.0) for _ in range(3)))
+    validation.scatter_shading_points(small, rng)
     ctx = non_delta_context()
     _, err_fine = validation.shading_expectation(bsdf, large, wo)
     small_fine = np.array(bsdf.eval(ctx, small, mi.Vector3f(wo) / np.linalg.norm(wo)))
@@ -328,7 +328,7 @@ def test_only_shiny_cloth_reads_exact_corners_and_large_probes_keep_the_rounding
     middle = validation.sheared_interaction(4096, [0.3, 0.55], 12.0, 2.0, N_TEXELS, wi, rotation=0.35)
     rng = np.random.default_rng(7)
     for si in (large, middle):  # the shading hash's source: each lane its own probe, texels, rounding
-        si.p = mi.Point3f(*(mi.Float(rng.random(4096) * 10.0) for _ in range(3)))
+        validation.scatter_shading_points(si, rng)
     ctx, w = non_delta_context(), mi.Vector3f(wo) / np.linalg.norm(wo)
     exact = [np.array(bsdf.eval(ctx, si, w)) for si in (large, middle)]
     monkeypatch.setattr(FootprintEstimator, "EXACT_CORNERS_BY_ROUGHNESS", ())
@@ -342,7 +342,7 @@ def _weighted_sample_means(bsdf, si, n, seed, tests):
     ``tests`` (functions of the sampled world direction, NumPy (3, n) -> (n,)), and the
     sample record with its weight."""
     rng = np.random.default_rng(seed)
-    si.p = mi.Point3f(*(mi.Float(rng.random(n) * 10.0) for _ in range(3)))
+    validation.scatter_shading_points(si, rng)
     bs, w = bsdf.sample(mi.BSDFContext(), si, mi.Float(rng.random(n)), mi.Point2f(rng.random(n), rng.random(n)))
     wo, red = np.array(bs.wo), np.array(w)[0]
     values = [red * g(wo) for g in tests]
@@ -476,7 +476,7 @@ def test_without_mis_a_shiny_sample_reports_the_density_given_its_texel():
     wi = np.array(PAIRS["near-specular"][0]) / np.linalg.norm(PAIRS["near-specular"][0])
     si = validation.footprint_interaction(n, [0.3, 0.55], 24.0, N_TEXELS, wi)
     rng = np.random.default_rng(8)
-    si.p = mi.Point3f(*(mi.Float(rng.random(n) * 10.0) for _ in range(3)))
+    validation.scatter_shading_points(si, rng)
     s1, s2 = mi.Float(rng.random(n)), mi.Point2f(rng.random(n), rng.random(n))
     ctx = mi.BSDFContext()
     sun = mi.Vector3f(-0.3, -0.1, 0.95)
@@ -559,7 +559,7 @@ def test_only_probes_of_few_texels_of_shiny_cloth_are_shaded_texel_by_texel(monk
     large = validation.footprint_interaction(4096, [0.3, 0.55], 20.0, N_TEXELS, wi)
     rng = np.random.default_rng(5)
     for si in (small, large):  # the shading hash's source: each lane its own probe and texels
-        si.p = mi.Point3f(*(mi.Float(rng.random(4096) * 10.0) for _ in range(3)))
+        validation.scatter_shading_points(si, rng)
     fr = bsdf.fibre.frame(large, True)
     assert np.all(np.array(bsdf.estimator.footprint(large, fr, mi.Float(0.0)).covered_count()) > limit)
     # The unrolled texels (for callers whose gradients flow) and the loop agree.
@@ -575,13 +575,7 @@ def test_only_probes_of_few_texels_of_shiny_cloth_are_shaded_texel_by_texel(monk
     # Every lane's probe the same (the hash's probe number held), its residual texels
     # and corner rounding its own: a covered probe is then one value, a probe shaded by
     # the SAT means and residual texels varies.
-    hashed = FootprintEstimator.shading_hash
-
-    def one_probe(self, si):
-        xi, xi_round, _ = hashed(self, si)
-        return xi, xi_round, mi.Float(np.full(4096, 0.4))
-
-    monkeypatch.setattr(FootprintEstimator, "shading_hash", one_probe)
+    hold_probe(monkeypatch, 4096)
     small_on, large_on = (np.array(bsdf.eval(ctx, si, wo_v)) for si in (small, large))
     monkeypatch.setattr(FootprintEstimator, "COVERED_TEXELS", 0)
     small_off, large_off = (np.array(bsdf.eval(ctx, si, wo_v)) for si in (small, large))

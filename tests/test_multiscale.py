@@ -9,7 +9,7 @@ import mscloth
 from mscloth import validation
 from mscloth.bsdf.lobes import enabled_lobes
 
-from cloth_fixtures import N_TEXELS, make_si, non_delta_context
+from cloth_fixtures import N_TEXELS, hold_probe, make_si, non_delta_context
 
 mscloth.register()
 
@@ -123,7 +123,7 @@ def test_footprint_furnace_and_weights(roughness):
         for theta in (0.0, 45.0, 80.0):
             si = footprint_si(n, [0.41, 0.17], half, direction(theta, 33.0))
             # The shading hash's source: each lane its own probe, residual texels and rounding.
-            si.p = mi.Point3f(*(mi.Float(rng.random(n) * 10.0) for _ in range(3)))
+            validation.scatter_shading_points(si, rng)
             ctx = mi.BSDFContext()
             bs, w = bsdf.sample(ctx, si, mi.Float(rng.random(n)), mi.Point2f(rng.random(n), rng.random(n)))
             w = np.array(w)
@@ -587,8 +587,6 @@ def test_emitter_directions_marked_exact_shade_rough_probes_texel_by_texel(monke
     a dim sky), rough cloth's probes of few texels are shaded texel by texel there: one
     probe, one value, the mean the SAT means and residual texels estimate; lanes not marked
     keep the SAT estimate, and the sampled direction keeps it either way."""
-    from mscloth.bsdf.footprint_estimator import FootprintEstimator
-
     bsdf = mi.load_dict(dict(BASE, roughness=0.33))
     estimator = bsdf.estimator
     limit = estimator.emitter_covered_texels()
@@ -597,16 +595,10 @@ def test_emitter_directions_marked_exact_shade_rough_probes_texel_by_texel(monke
     wi, wo = (unit(d) for d in DIRECTIONS[1])
     si = footprint_si(n, [0.3, 0.55], 3.0, wi)
     rng = np.random.default_rng(9)
-    si.p = mi.Point3f(*(mi.Float(rng.random(n) * 10.0) for _ in range(3)))
+    validation.scatter_shading_points(si, rng)
     # Every lane's probe the same (the hash's probe number held); its residual texels and
     # rounding its own.
-    hashed = FootprintEstimator.shading_hash
-
-    def one_probe(self, s):
-        xi, xi_round, _ = hashed(self, s)
-        return xi, xi_round, mi.Float(np.full(n, 0.4))
-
-    monkeypatch.setattr(FootprintEstimator, "shading_hash", one_probe)
+    hold_probe(monkeypatch, n)
     fr = bsdf.fibre.frame(si, True)
     counts = np.array(estimator.footprint(si, fr, mi.Float(0.0)).covered_count())
     assert np.all((counts >= 4) & (counts <= limit)), counts

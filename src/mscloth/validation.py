@@ -177,6 +177,14 @@ def curved_pixel_expectation(bsdf, n: int, uv, a_texels: float, shear: float, ti
     return shading_expectation(bsdf, si, to_tilted(mi.Vector3f(_unit(wo)), a, b), seed=seed + 1)
 
 
+def scatter_shading_points(si, rng):
+    """Give each lane of ``si`` its own random si.p (drawn from NumPy generator ``rng``):
+    the footprint estimator's shading hash, and so each lane's probe, residual texels and
+    rounding, then differ between lanes (interactions built with ``dr.zeros`` share one)."""
+    n = dr.width(si)
+    si.p = mi.Point3f(*(mi.Float(rng.random(n) * 10.0) for _ in range(3)))
+
+
 def shading_expectation(bsdf, si, wo, seed=3):
     """(mean, standard error) of the red channel of ``bsdf.eval`` (non-delta lobes) over the
     lanes of ``si`` with random si.p: what a render averages over a pixel's samples at one
@@ -184,8 +192,7 @@ def shading_expectation(bsdf, si, wo, seed=3):
     for footprints of a few texels, footprint or fibre-level shading). ``wo``: one
     direction (normalised here), or a Vector3f of unit directions, one per lane."""
     n = dr.width(si)
-    rng = np.random.default_rng(seed)
-    si.p = mi.Point3f(*(mi.Float(rng.random(n) * 10.0) for _ in range(3)))
+    scatter_shading_points(si, np.random.default_rng(seed))
     if not isinstance(wo, mi.Vector3f):
         wo = mi.Vector3f(_unit(wo))
     v = np.array(bsdf.eval(non_delta_context(), si, wo))[0]
