@@ -11,6 +11,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+from mscloth.bsdf.footprint_estimator import FootprintEstimator
 from mscloth.integrators import clothpath_class, register_integrators
 from mscloth.integrators import footprint as fp
 
@@ -398,6 +399,53 @@ class FootprintProbe(ZeroEval):
 
 
 mi.register_bsdf("footprint_probe", lambda props: FootprintProbe(props))
+
+
+class NormalTurnProbe(ZeroEval):
+    """A mirror whose weight is how far the normal turns across the footprint it receives
+    (``FootprintEstimator.normal_tilt``) over the footprint's size on the surface
+    (|dp/duv si.duv_dx|, |dp/duv si.duv_dy|, the larger): 1 / radius on a sphere, whose
+    normal is p / radius, and 0 on a flat shape."""
+
+    def __init__(self, props):
+        mi.BSDF.__init__(self, props)
+        flags = mi.BSDFFlags.DeltaReflection | mi.BSDFFlags.FrontSide
+        self.m_components = [flags]
+        self.m_flags = flags
+
+    def sample(self, ctx, si, sample1, sample2, active):
+        bs = dr.zeros(mi.BSDFSample3f)
+        bs.wo = mi.reflect(si.wi)
+        bs.pdf = 1.0
+        bs.eta = 1.0
+        bs.sampled_type = mi.UInt32(+mi.BSDFFlags.DeltaReflection)
+        bs.sampled_component = 0
+        size = dr.maximum(dr.norm(si.dp_du * si.duv_dx.x + si.dp_dv * si.duv_dx.y),
+                          dr.norm(si.dp_du * si.duv_dy.x + si.dp_dv * si.duv_dy.y))
+        turn = FootprintEstimator.normal_tilt(si) * dr.rcp(dr.maximum(size, 1e-12))
+        return bs, mi.Spectrum(turn) & active
+
+    def to_string(self):
+        return "NormalTurnProbe[]"
+
+
+mi.register_bsdf("normal_turn_probe", lambda props: NormalTurnProbe(props))
+
+
+def test_bsdf_sees_how_far_the_normal_turns_across_the_footprint():
+    """``clothpath`` hands the BSDF the normal's derivatives (RayFlags.dNSdUV, which
+    RayFlags.All leaves out): the footprint estimator gives curved cloth's probes cells by
+    them. A sphere of radius 2 reads 1/2 wherever it is seen; a flat square 0."""
+    probe = {"type": "normal_turn_probe"}
+    sphere = {"type": "scene", "integrator": {"type": "clothpath"},
+              "sensor": {"type": "perspective", "fov": 30,
+                         "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 10], target=[0, 0, 0], up=[0, 1, 0]),
+                         "film": {"type": "hdrfilm", "width": 32, "height": 32, "rfilter": {"type": "box"}}},
+              "ball": {"type": "sphere", "radius": 2.0, "bsdf": probe}, "sky": {"type": "constant"}}
+    img = render(mi.load_dict(sphere), 4, 0)
+    np.testing.assert_allclose(img[10:22, 10:22, 0], 0.5, rtol=1e-3)
+    flat = render(mi.load_dict(square_view(16, bsdf=probe)), 4, 0)
+    assert np.all(flat[13:19, 13:19, 0] == 0.0) and np.all(flat[:4, :4, 0] == 1.0)
 
 
 def test_bsdf_receives_the_first_hit_footprint():

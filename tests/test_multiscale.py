@@ -7,6 +7,7 @@ import pytest
 
 import mscloth
 from mscloth import validation
+from mscloth.bsdf.footprint_estimator import FootprintEstimator
 from mscloth.bsdf.lobes import enabled_lobes
 
 from cloth_fixtures import N_TEXELS, hold_probe, make_si, non_delta_context
@@ -351,10 +352,15 @@ def test_exact_sat_queries_integrate_fractional_boxes_in_packets_and_alone():
 
 
 # ---------------------------------------------------------------- sheared footprints (probes)
-def sheared_si(n, uv, a_texels, shear, wi):
+def sheared_si(n, uv, a_texels, shear, wi, curvature=0.0):
     """A pixel footprint with edges a = (a, 0) and b = (shear * a, a) texels: the parallelogram
-    a perspective camera gives towards the image's sides."""
-    return validation.sheared_interaction(n, uv, a_texels, shear, N_TEXELS, wi)
+    a perspective camera gives towards the image's sides (on a surface whose normal turns by
+    ``curvature`` radians per UV unit)."""
+    return validation.sheared_interaction(n, uv, a_texels, shear, N_TEXELS, wi, curvature=curvature)
+
+
+#: A sphere's curvature in UV units (radius 1, 40 texels a pixel: 0.16 rad per pixel).
+CURVED = 2.0
 
 
 def probe_boxes(bsdf, si, u_probe):
@@ -400,20 +406,21 @@ def test_footprint_probes_tile_the_pixel_parallelogram(a, shear):
     assert np.all(np.abs(st) < 0.5), st
 
 
+@pytest.mark.parametrize("curvature", [CURVED, 0.0])
 @pytest.mark.parametrize("pixel_filter", ["box", "tent"])
-def test_pixel_filter_places_probes_and_points(pixel_filter):
-    """Camera samples at known places in their pixel, on a stratified 64 x 64 grid: with the
-    box the probes are the 2 x 2 cells of a square footprint (offsets +-1/4 pixel: variance
-    1/16) and the fibre-level points the samples' own (variance 1/12); with clothpath's
-    ``uv_filter`` tent each probe also moves by a tent offset (variance + 1/6) and each point
-    sits at the quadratic B-spline's quantile (box x tent: 1/12 + 1/6). Means stay at the
-    pixel centre."""
+def test_pixel_filter_places_probes_and_points(pixel_filter, curvature):
+    """Camera samples at known places in their pixel, on a stratified 64 x 64 grid: on
+    curved cloth with the box the probes are the 2 x 2 cells of a square footprint (offsets
+    +-1/4 pixel: variance 1/16), on flat cloth the whole footprint (variance 0); the
+    fibre-level points are the samples' own (variance 1/12). With clothpath's ``uv_filter``
+    tent each probe also moves by a tent offset (variance + 1/6) and each point sits at the
+    quadratic B-spline's quantile (box x tent: 1/12 + 1/6). Means stay at the pixel centre."""
     bsdf = mi.load_dict(BASE)
     m = 64
     g = (np.arange(m) + 0.5) / m - 0.5
     ox, oy = (v.ravel() for v in np.meshgrid(g, g))
     a = 40.0
-    si = sheared_si(ox.size, [0.3, 0.55], a, 0.0, [0.2, 0.1, 0.97])
+    si = sheared_si(ox.size, [0.3, 0.55], a, 0.0, [0.2, 0.1, 0.97], curvature)
     fr = bsdf.fibre.frame(si, True, mi.Point2f(ox, oy), pixel_filter)
     fp = bsdf.estimator.footprint(si, fr, mi.Float(0.0))
     x0, y0, x1, y1 = (np.asarray(v) for v in fp.box)
@@ -424,22 +431,33 @@ def test_pixel_filter_places_probes_and_points(pixel_filter):
     tent = 1.0 / 6.0 if pixel_filter == "tent" else 0.0
     np.testing.assert_allclose(probe.mean(axis=0) / a, 0.0, atol=2e-3)
     np.testing.assert_allclose(point.mean(axis=0), 0.0, atol=2e-3)
-    np.testing.assert_allclose((probe / a).var(axis=0), 1.0 / 16.0 + tent, rtol=0.02)
+    cells = 1.0 / 16.0 if curvature else 0.0
+    np.testing.assert_allclose((probe / a).var(axis=0), cells + tent, rtol=0.02, atol=1e-9)
     np.testing.assert_allclose(point.var(axis=0), 1.0 / 12.0 + tent, rtol=0.02)
 
 
-def test_long_footprints_get_cells_across_on_rough_cloth_only():
+def test_long_footprints_get_cells_across_on_curved_rough_cloth_only():
     """A footprint cut into MAX_PROBES slices keeps one cell across on shiny fibres (a
-    second multiplied satin-plane's noise) and gets CELLS across on rough ones (less edge
-    bias): twice the distinct probes there."""
+    second multiplied satin-plane's noise) and gets CELLS across on rough ones where the
+    surface is curved (the sample's cell keeps its texels with their normal): twice the
+    distinct probes there. On flat cloth, and on a surface that turns by less than
+    CELLS_TILT across the pixel, one cell (less variance between probes)."""
+    a, shear = 40.0, 3.0
+    # The pixel's longer edge, (shear a, a) texels, in UV units: where the normal turns most.
+    edge = a * np.hypot(shear, 1.0) / N_TEXELS
+    surfaces = {"curved": CURVED, "slightly curved": 0.5 * FootprintEstimator.CELLS_TILT / edge, "flat": 0.0}
     counts = {}
     for roughness in (0.1, 0.3):
         bsdf = mi.load_dict(dict(BASE, roughness=roughness))
-        m = 512
-        boxes = probe_boxes(bsdf, sheared_si(m, [0.3, 0.55], 40.0, 3.0, [0.2, 0.1, 0.97]), (np.arange(m) + 0.5) / m)
-        counts[roughness] = len(np.unique(boxes, axis=0))
-    n = bsdf.estimator.MAX_PROBES
-    assert counts == {0.1: n, 0.3: n * bsdf.estimator.CELLS}, counts
+        for name, curvature in surfaces.items():
+            m = 512
+            si = sheared_si(m, [0.3, 0.55], a, shear, [0.2, 0.1, 0.97], curvature)
+            boxes = probe_boxes(bsdf, si, (np.arange(m) + 0.5) / m)
+            counts[roughness, name] = len(np.unique(boxes, axis=0))
+    n = FootprintEstimator.MAX_PROBES
+    expected = {(r, name): n * (FootprintEstimator.CELLS if (r, name) == (0.3, "curved") else 1)
+                for r in (0.1, 0.3) for name in surfaces}
+    assert counts == expected, counts
 
 
 @pytest.mark.parametrize("a,shear", [(10.0, 0.8), (6.0, 2.5)])
@@ -582,6 +600,34 @@ def test_footprint_means_are_means_and_lobe_choices_a_distribution(monkeypatch):
     np.testing.assert_allclose(probs.sum(axis=0), 1.0, atol=1e-5)
 
 
+def test_lanes_marked_exact_shade_small_footprints_whole():
+    """Where a shading point's emitter directions are shaded texel by texel (``exact``),
+    footprints blend into fibre-level shading between EXACT_BLEND_TEXELS (1 and 2 texels:
+    the texel-by-texel probe has no noise at the sun, which a point sample keeps); other
+    lanes between POINT_TEXELS and FOOTPRINT_TEXELS (16 and 32)."""
+    bsdf = mi.load_dict(dict(BASE, roughness=0.33))
+    estimator = bsdf.estimator
+    point_exact, whole_exact = estimator.EXACT_BLEND_TEXELS
+    point, whole = estimator.blend_texels()
+    assert whole_exact < point
+    n = 4096
+    u = mi.Float((np.arange(n) + 0.5) / n)
+    marked = mi.Bool(np.arange(n) % 2 == 0)
+    wi = unit([0.2, 0.1, 0.97])
+    for side in (0.5, 1.2, 3.0, 20.0, 40.0):  # texels across a square pixel
+        si = sheared_si(n, [0.3, 0.55], side, 0.0, wi)
+        fr = bsdf.fibre.frame(si, True)
+        use = np.asarray(estimator.footprint(si, fr, u, exact=marked).use)
+        texels = max(side, 1.0) ** 2
+        share = lambda lo, hi: np.clip((texels - lo) / (hi - lo), 0.0, 1.0)  # noqa: E731
+        # u is uniform over each half of the lanes: the share that takes the footprint.
+        assert abs(use[0::2].mean() - share(point_exact, whole_exact)) <= 2.0 / n, side
+        assert abs(use[1::2].mean() - share(point, whole)) <= 2.0 / n, side
+    # Without marks, every lane blends as the unmarked ones.
+    si = sheared_si(n, [0.3, 0.55], 3.0, 0.0, wi)
+    assert not np.any(np.asarray(estimator.footprint(si, bsdf.fibre.frame(si, True), u).use))
+
+
 def test_emitter_directions_marked_exact_shade_rough_probes_texel_by_texel(monkeypatch):
     """Where clothpath marks a first hit's emitter directions exact (``exact_wos``: a sun over
     a dim sky), rough cloth's probes of few texels are shaded texel by texel there: one
@@ -593,7 +639,8 @@ def test_emitter_directions_marked_exact_shade_rough_probes_texel_by_texel(monke
     assert limit > 0 and estimator.covered_texels() == 0
     n = 8192
     wi, wo = (unit(d) for d in DIRECTIONS[1])
-    si = footprint_si(n, [0.3, 0.55], 3.0, wi)
+    # A 6 x 6 texel pixel on curved cloth: 2 x 2 cells, probes of 9 texels.
+    si = sheared_si(n, [0.3, 0.55], 6.0, 0.0, wi, CURVED)
     rng = np.random.default_rng(9)
     validation.scatter_shading_points(si, rng)
     # Every lane's probe the same (the hash's probe number held); its residual texels and

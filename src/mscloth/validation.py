@@ -132,14 +132,18 @@ def _edges(a_texels: float, shear: float, rotation: float):
             (shear * a_texels * c - a_texels * s, shear * a_texels * s + a_texels * c))
 
 
-def sheared_interaction(n: int, uv, a_texels: float, shear: float, tile_texels: int, wi, rotation: float = 0.0):
+def sheared_interaction(n: int, uv, a_texels: float, shear: float, tile_texels: int, wi, rotation: float = 0.0,
+                        curvature: float = 0.0):
     """``n`` lanes at ``uv`` with the sheared pixel footprint of edges (a, 0) and
     (shear a, a) texels, turned by ``rotation`` radians (uv_scale 1, a tile of
-    ``tile_texels`` texels)."""
+    ``tile_texels`` texels), on a surface whose normal turns by ``curvature`` radians per
+    UV unit (si.dn_du, si.dn_dv; 0: flat)."""
     si = footprint_interaction(n, uv, 0.0, tile_texels, wi)
     (ax, ay), (bx, by) = _edges(a_texels, shear, rotation)
     si.duv_dx = mi.Vector2f(ax / tile_texels, ay / tile_texels)
     si.duv_dy = mi.Vector2f(bx / tile_texels, by / tile_texels)
+    si.dn_du = mi.Vector3f(float(curvature), 0.0, 0.0)
+    si.dn_dv = mi.Vector3f(0.0, float(curvature), 0.0)
     return si
 
 
@@ -170,7 +174,7 @@ def curved_pixel_expectation(bsdf, n: int, uv, a_texels: float, shear: float, ti
     1/curvature in UV units), as ``clothpath`` hands them to a footprint BSDF: each sample
     at a random point of the pixel, with the pixel centre's uv and footprint and its own
     normal (the directions local to it)."""
-    si = sheared_interaction(n, uv, a_texels, shear, tile_texels, wi)
+    si = sheared_interaction(n, uv, a_texels, shear, tile_texels, wi, curvature=curvature)
     du, dv = _pixel_points(n, a_texels, shear, tile_texels, seed)
     a, b = mi.Float(curvature * du), mi.Float(curvature * dv)
     si.wi = to_tilted(mi.Vector3f(_unit(wi)), a, b)

@@ -111,7 +111,11 @@ class ClothShading:
         else:
             # One hash and one footprint per shading point, for the branch choice and
             # for the branch taken.
-            hashed, fp = self._hashed_footprint(si, fr)
+            estimator = self.estimator
+            if not (estimator.covered_texels() == 0 and estimator.emitter_covered_texels() > 0 and wos
+                    and not self._gradients(si, fr, wos)):
+                exact_wos = None  # (no probe is shaded texel by texel at the emitters)
+            hashed, fp = self._hashed_footprint(si, fr, exact_wos)
             values, pdfs, record = branch(
                 fp.use, (si, wos, samples),
                 true_fn=lambda: self._footprint_branch(si, fr, enabled, wos, samples, active, fp, hashed, mis,
@@ -122,11 +126,12 @@ class ClothShading:
         pdfs = [dr.select(active, p, 0.0) for p in pdfs]
         return values, pdfs, (self._bsdf_sample(SampleRecord(*record)) if record else ())
 
-    def _hashed_footprint(self, si, fr: ViewFrame):
+    def _hashed_footprint(self, si, fr: ViewFrame, exact_wos=None):
         """(the shading hash (xi, xi_round, u), the footprint it picks): one of each per
-        shading point, for the branch choice and for the branch taken."""
+        shading point, for the branch choice and for the branch taken (``exact_wos``: see
+        :meth:`shade`)."""
         hashed = self.estimator.shading_hash(si)
-        return hashed, self.estimator.footprint(si, fr, hashed[2])
+        return hashed, self.estimator.footprint(si, fr, hashed[2], exact=exact_wos)
 
     def sample_footprint(self, enabled, si, sample1, sample2, active=True):
         """(BSDFSample3f, weight) of the footprint branch alone, for footprints known to be
@@ -193,8 +198,7 @@ class ClothShading:
         small = shade
         covered = estimator.covered_texels()
         emitter_covered = estimator.emitter_covered_texels()
-        if (covered == 0 and emitter_covered > 0 and exact_wos is not None and wos
-                and not self._gradients(si, fr, wos)):
+        if exact_wos is not None:  # (shade: only where the rule applies)
             def small():
                 return branch(exact_wos & (fp.covered_count() <= emitter_covered), (si, wos, samples),
                               true_fn=lambda: shade(emitters_covered=True), false_fn=shade,

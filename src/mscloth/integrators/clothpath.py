@@ -466,7 +466,9 @@ def make_clothpath_class():
 
             def body(sampler, s: PathState):
                 s_ray = s.ray(ray)
-                si = s.pi.compute_surface_interaction(s_ray, mi.RayFlags.All)
+                # dNSdUV (not in All): how far the normal turns across a footprint, which
+                # decides whether its probes follow the sample's place (curved cloth).
+                si = s.pi.compute_surface_interaction(s_ray, mi.RayFlags.All | mi.RayFlags.dNSdUV)
                 # (scalar: a miss has no shape, and si.bsdf() would dereference it)
                 bsdf = si.bsdf() if any_or_true(si.is_valid()) else None
 
