@@ -432,18 +432,42 @@ class NormalTurnProbe(ZeroEval):
 mi.register_bsdf("normal_turn_probe", lambda props: NormalTurnProbe(props))
 
 
+def uv_sphere_mesh(radius: float, bsdf: dict, nu: int = 96, nv: int = 48):
+    """A triangle mesh of a sphere with vertex normals and texcoords (u along the
+    longitude, v along the latitude, as Mitsuba's sphere)."""
+    theta, phi = np.meshgrid(np.linspace(0.0, np.pi, nv + 1), np.linspace(0.0, 2.0 * np.pi, nu + 1), indexing="ij")
+    # The poles on the y axis: a camera on the z axis sees the equator.
+    n = np.stack([np.sin(theta) * np.cos(phi), np.cos(theta), np.sin(theta) * np.sin(phi)], -1).reshape(-1, 3)
+    uv = np.stack([phi / (2.0 * np.pi), theta / np.pi], -1).reshape(-1, 2)
+    a = (np.arange(nv)[:, None] * (nu + 1) + np.arange(nu)[None, :]).ravel()
+    faces = np.concatenate([np.stack([a, a + nu + 1, a + 1], 1), np.stack([a + 1, a + nu + 1, a + nu + 2], 1)])
+    mesh = mi.Mesh("ball", len(n), len(faces), has_vertex_normals=True, has_vertex_texcoords=True,
+                   props=mi.Properties())
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = dr.ravel(mi.Point3f(*(radius * n).T.astype(np.float32)))
+    params["faces"] = dr.ravel(mi.Vector3u(*faces.astype(np.uint32).T))
+    params["vertex_texcoords"] = dr.ravel(mi.Point2f(*uv.T.astype(np.float32)))
+    params.update()
+    mesh.recompute_vertex_normals()
+    mesh.set_bsdf(mi.load_dict(bsdf))
+    return mesh
+
+
 def test_bsdf_sees_how_far_the_normal_turns_across_the_footprint():
-    """``clothpath`` hands the BSDF the normal's derivatives (RayFlags.dNSdUV, which
-    RayFlags.All leaves out): the footprint estimator gives curved cloth's probes cells by
-    them. A sphere of radius 2 reads 1/2 wherever it is seen; a flat square 0."""
+    """``clothpath`` hands the BSDF the normal's derivatives per UV (RayFlags.dNSdUV, which
+    RayFlags.All leaves out; Mitsuba's meshes give them per barycentric unit, which
+    ``uv_normal_derivatives`` converts): the footprint estimator gives curved cloth's probes
+    cells by them. A sphere of radius 2 reads 1/2 wherever it is seen, analytic or a mesh
+    (within its facets' 2%); a flat square 0."""
     probe = {"type": "normal_turn_probe"}
-    sphere = {"type": "scene", "integrator": {"type": "clothpath"},
-              "sensor": {"type": "perspective", "fov": 30,
-                         "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 10], target=[0, 0, 0], up=[0, 1, 0]),
-                         "film": {"type": "hdrfilm", "width": 32, "height": 32, "rfilter": {"type": "box"}}},
-              "ball": {"type": "sphere", "radius": 2.0, "bsdf": probe}, "sky": {"type": "constant"}}
-    img = render(mi.load_dict(sphere), 4, 0)
-    np.testing.assert_allclose(img[10:22, 10:22, 0], 0.5, rtol=1e-3)
+    sensor = {"type": "perspective", "fov": 30,
+              "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 10], target=[0, 0, 0], up=[0, 1, 0]),
+              "film": {"type": "hdrfilm", "width": 32, "height": 32, "rfilter": {"type": "box"}}}
+    for ball, rtol in (({"type": "sphere", "radius": 2.0, "bsdf": probe}, 1e-3), (uv_sphere_mesh(2.0, probe), 0.02)):
+        scene = {"type": "scene", "integrator": {"type": "clothpath"}, "sensor": sensor, "ball": ball,
+                 "sky": {"type": "constant"}}
+        img = render(mi.load_dict(scene), 4, 0)
+        np.testing.assert_allclose(img[10:22, 10:22, 0], 0.5, rtol=rtol)
     flat = render(mi.load_dict(square_view(16, bsdf=probe)), 4, 0)
     assert np.all(flat[13:19, 13:19, 0] == 0.0) and np.all(flat[:4, :4, 0] == 1.0)
 

@@ -359,7 +359,7 @@ def sheared_si(n, uv, a_texels, shear, wi, curvature=0.0):
     return validation.sheared_interaction(n, uv, a_texels, shear, N_TEXELS, wi, curvature=curvature)
 
 
-#: A sphere's curvature in UV units (radius 1, 40 texels a pixel: 0.16 rad per pixel).
+#: A curvature in radians per UV unit (a 40-texel pixel of the 128-texel tile: 0.6 rad).
 CURVED = 2.0
 
 
@@ -445,7 +445,8 @@ def test_long_footprints_get_cells_across_on_curved_rough_cloth_only():
     a, shear = 40.0, 3.0
     # The pixel's longer edge, (shear a, a) texels, in UV units: where the normal turns most.
     edge = a * np.hypot(shear, 1.0) / N_TEXELS
-    surfaces = {"curved": CURVED, "slightly curved": 0.5 * FootprintEstimator.CELLS_TILT / edge, "flat": 0.0}
+    tilt = FootprintEstimator.CELLS_TILT
+    surfaces = {"curved": CURVED, "just curved": 2.0 * tilt / edge, "slightly curved": 0.5 * tilt / edge, "flat": 0.0}
     counts = {}
     for roughness in (0.1, 0.3):
         bsdf = mi.load_dict(dict(BASE, roughness=roughness))
@@ -455,7 +456,7 @@ def test_long_footprints_get_cells_across_on_curved_rough_cloth_only():
             boxes = probe_boxes(bsdf, si, (np.arange(m) + 0.5) / m)
             counts[roughness, name] = len(np.unique(boxes, axis=0))
     n = FootprintEstimator.MAX_PROBES
-    expected = {(r, name): n * (FootprintEstimator.CELLS if (r, name) == (0.3, "curved") else 1)
+    expected = {(r, name): n * (FootprintEstimator.CELLS if r == 0.3 and name in ("curved", "just curved") else 1)
                 for r in (0.1, 0.3) for name in surfaces}
     assert counts == expected, counts
 
@@ -617,7 +618,7 @@ def test_lanes_marked_exact_shade_small_footprints_whole():
     for side in (0.5, 1.2, 3.0, 20.0, 40.0):  # texels across a square pixel
         si = sheared_si(n, [0.3, 0.55], side, 0.0, wi)
         fr = bsdf.fibre.frame(si, True)
-        use = np.asarray(estimator.footprint(si, fr, u, exact=marked).use)
+        use = np.asarray(estimator.footprint(si, fr, u, exact_emitters=marked).use)
         texels = max(side, 1.0) ** 2
         share = lambda lo, hi: np.clip((texels - lo) / (hi - lo), 0.0, 1.0)  # noqa: E731
         # u is uniform over each half of the lanes: the share that takes the footprint.
@@ -626,6 +627,27 @@ def test_lanes_marked_exact_shade_small_footprints_whole():
     # Without marks, every lane blends as the unmarked ones.
     si = sheared_si(n, [0.3, 0.55], 3.0, 0.0, wi)
     assert not np.any(np.asarray(estimator.footprint(si, bsdf.fibre.frame(si, True), u).use))
+
+
+def test_shade_hands_the_exact_mark_to_the_blend(monkeypatch):
+    """Through ``shade``: a flat 3 x 3 texel pixel is shaded whole where its emitter
+    directions are marked exact (one probe, texel by texel: one value) and at the sample's
+    own fibre-level point elsewhere (a value per point)."""
+    bsdf = mi.load_dict(dict(BASE, roughness=0.33))
+    n = 4096
+    wi, wo = (unit(d) for d in DIRECTIONS[1])
+    si = sheared_si(n, [0.3, 0.55], 3.0, 0.0, wi)
+    rng = np.random.default_rng(12)
+    validation.scatter_shading_points(si, rng)
+    hold_probe(monkeypatch, n)
+    enabled = enabled_lobes(non_delta_context())
+    samples = (mi.Float(rng.random(n)), mi.Point2f(rng.random(n), rng.random(n)))
+    marked = mi.Bool(np.arange(n) % 2 == 0)
+    values, _, _ = bsdf.shading.shade(enabled, si, [mi.Vector3f(wo)], samples, True, exact_wos=marked)
+    v = np.array(values[0])[0]
+    exact, point = v[0::2], v[1::2]
+    assert np.std(exact) < 1e-5 * np.mean(exact), np.std(exact)
+    assert np.std(point) > 0.05 * np.mean(point), np.std(point)
 
 
 def test_emitter_directions_marked_exact_shade_rough_probes_texel_by_texel(monkeypatch):

@@ -112,7 +112,8 @@ class ClothShading:
             # One hash and one footprint per shading point, for the branch choice and
             # for the branch taken.
             estimator = self.estimator
-            if not (estimator.covered_texels() == 0 and estimator.emitter_covered_texels() > 0 and wos
+            if exact_wos is not None and not (
+                    estimator.covered_texels() == 0 and estimator.emitter_covered_texels() > 0 and wos
                     and not self._gradients(si, fr, wos)):
                 exact_wos = None  # (no probe is shaded texel by texel at the emitters)
             hashed, fp = self._hashed_footprint(si, fr, exact_wos)
@@ -131,7 +132,7 @@ class ClothShading:
         shading point, for the branch choice and for the branch taken (``exact_wos``: see
         :meth:`shade`)."""
         hashed = self.estimator.shading_hash(si)
-        return hashed, self.estimator.footprint(si, fr, hashed[2], exact=exact_wos)
+        return hashed, self.estimator.footprint(si, fr, hashed[2], exact_emitters=exact_wos)
 
     def sample_footprint(self, enabled, si, sample1, sample2, active=True):
         """(BSDFSample3f, weight) of the footprint branch alone, for footprints known to be

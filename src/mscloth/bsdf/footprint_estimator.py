@@ -196,8 +196,8 @@ class FootprintEstimator:
     #: 4 / 8 (performance log L48); 0.0083 -> 0.0063 at 1 / 2 (bias 2.0e-5) for +1% time
     #: (L51).
     BLEND_TEXELS_BY_ROUGHNESS = ((0.15, 1.0, 2.0),)
-    #: ... and where a shading point's emitter directions are marked exact (``exact`` of
-    #: :meth:`footprint`) and probes of few texels are shaded texel by texel there
+    #: ... and where a shading point's emitter directions are marked exact
+    #: (``exact_emitters`` of :meth:`footprint`) and probes of few texels are shaded texel by texel there
     #: (:meth:`emitter_covered_texels`): the sun's light then has no noise of its own in
     #: the footprint branch, which a point sample keeps. Denim near, noise per sample
     #: 0.00118 -> 0.000275 at 1 / 2, squared bias 1.1e-6 (performance log L57).
@@ -216,8 +216,10 @@ class FootprintEstimator:
     #: roughness: (below this roughness, slices), first match; else always. Shiny cloth
     #: keeps one cell across footprints cut into MAX_PROBES slices, long thin ones towards
     #: a horizon (two: 5-20x satin-plane's noise for no bias gained); on rough cloth two
-    #: cut the probes' edge bias (denim middle / far 7x / 2.4x, sphere and drape 10-30%)
-    #: for up to 11% more noise on the sky-lit plane (performance log L24, L30, L31).
+    #: cut the probes' edge bias (sphere and drape 10-30%; denim's 7x / 2.4x in L24 was
+    #: before exact corners and the tilt rule below, which gives flat denim one cell
+    #: again at no bias) for up to 11% more noise on the sky-lit plane (performance log
+    #: L24, L30, L31, L57).
     CELLS_BELOW_BY_ROUGHNESS = ((0.15, 16),)
     #: The slice count for every roughness instead (experiments), or None.
     CELLS_BELOW = None
@@ -387,7 +389,7 @@ class FootprintEstimator:
         p = self.fibre.params
         return edges_in_texels(p.uv_scale, p.uv_scale_v, self.fibre.tile, si)
 
-    def footprint(self, si, fr: ViewFrame, u, u_probe=None, exact=None) -> Footprint:
+    def footprint(self, si, fr: ViewFrame, u, u_probe=None, exact_emitters=None) -> Footprint:
         """The pixel footprint's probe (a texel box), and whether to shade it as one.
 
         Convention (docs/architecture.md): the footprint is the parallelogram spanned by
@@ -406,9 +408,10 @@ class FootprintEstimator:
         between by one or the other, picked by ``u`` with a weight linear in the
         area: both estimate the same footprint mean, and a footprint of a few texels
         was noisier than a fibre-level sample. ``u_probe`` (default: ``u`` rescaled
-        within the footprint's share) picks the probe. ``exact`` (a mask, or None): lanes
-        whose emitter directions are shaded texel by texel, which blend between
-        ``EXACT_BLEND_TEXELS`` instead.
+        within the footprint's share) picks the probe. ``exact_emitters`` (a mask, or None):
+        lanes whose emitter directions are marked exact where rough cloth's probes of few
+        texels are shaded texel by texel there; they blend between ``EXACT_BLEND_TEXELS``
+        instead (their larger probes, too, by the SAT means and residual texels).
 
         Under ``clothpath``'s tent ``uv_filter`` (``fr.pixel_filter``), where the sample's
         place in its pixel is known, the probe also moves by a tent offset of up to a pixel
@@ -429,10 +432,10 @@ class FootprintEstimator:
             p_use = dr.clip((texels - point_texels) * (1.0 / span), 0.0, 1.0)
         else:  # no blend zone (experiments): a step at point_texels
             p_use = dr.select(texels >= point_texels, 1.0, 0.0)
-        if exact is not None:  # lanes whose emitter directions are shaded texel by texel
+        if exact_emitters is not None:
             point_exact, whole_exact = self.EXACT_BLEND_TEXELS
             p_exact = dr.clip((texels - point_exact) * (1.0 / (whole_exact - point_exact)), 0.0, 1.0)
-            p_use = dr.select(exact, p_exact, p_use)
+            p_use = dr.select(exact_emitters, p_exact, p_use)
         p_use = dr.select(finite & (length > 0.0), p_use, 0.0)
         # (p_use > 0) first: a zero footprint of constant si.duv_dx/dy is then a literal
         # False, and the symbolic if traces the fibre-level branch alone.
@@ -543,7 +546,10 @@ class FootprintEstimator:
         """How far (radians, for small turns) the shading normal turns across the pixel
         footprint: the larger of |dn/duv si.duv_dx| and |dn/duv si.duv_dy|. Zero where
         si.dn_du, si.dn_dv were not computed (``clothpath`` asks for them: RayFlags.dNSdUV,
-        which RayFlags.All leaves out) and on flat shapes."""
+        which RayFlags.All leaves out; per UV on meshes too:
+        :func:`.integrators.footprint.uv_normal_derivatives`) and on flat shapes."""
+        if dr.width(si.dn_du) == 0 or dr.width(si.dn_dv) == 0:  # (a default-constructed si)
+            return mi.Float(0.0)
         ta = si.dn_du * si.duv_dx.x + si.dn_dv * si.duv_dx.y
         tb = si.dn_du * si.duv_dy.x + si.dn_dv * si.duv_dy.y
         tilt = dr.maximum(dr.norm(ta), dr.norm(tb))

@@ -494,6 +494,11 @@ def make_clothpath_class():
                     si.duv_dy = dr.select(s.delta_chain, si.duv_dy, 0.0)
                     shadow_w = dr.select(s.delta_chain, w_hit, 0.0)
                     shadow_spread = dr.select(s.delta_chain, s.cone_spread, 0.0)
+                # Per UV, as si.duv_dx, si.duv_dy (meshes give them per barycentric unit),
+                # where a footprint is handed over.
+                shaded = ((si.duv_dx.x != 0.0) | (si.duv_dx.y != 0.0) | (si.duv_dy.x != 0.0)
+                          | (si.duv_dy.y != 0.0))
+                si.dn_du, si.dn_dv = fp.uv_normal_derivatives(si, shaded & s.active)
                 if footprint_aovs:
                     record = first & si.is_valid()
                     h_u, h_v = fp.half_widths(si.duv_dx, si.duv_dy)

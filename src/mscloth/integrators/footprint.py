@@ -184,6 +184,42 @@ def world_to_uv(q, dp_du, dp_dv):
     return mi.Vector2f(_finite_or(u, DEGENERATE_UV), _finite_or(v, DEGENERATE_UV))
 
 
+def uv_normal_derivatives(si, active=True):
+    """(dn/du, dn/dv) of the shading normal per unit of texture UV, as Mitsuba's analytic
+    shapes give si.dn_du, si.dn_dv (RayFlags.dNSdUV). Mitsuba 3's triangle meshes give them
+    per unit of the triangle's barycentric coordinates (mesh.cpp) while their si.dp_du,
+    si.dp_dv are per UV: on a mesh with texture coordinates they are taken through the
+    inverse of the texcoords' Jacobian (the solve Mitsuba does for dp_du, dp_dv). A mesh
+    without texcoords has barycentric UVs, which already agree. Scalar variants keep
+    Mitsuba's (their hit's shape comes to Python as a Shape, without the mesh's methods):
+    fewer cells on curved meshes there."""
+    shape = si.shape
+    if not dr.is_jit_v(mi.Float):  # scalar: one shading point
+        if not (active and si.is_valid() and isinstance(shape, mi.Mesh) and shape.has_vertex_texcoords()):
+            return si.dn_du, si.dn_dv
+        fi = shape.face_indices(si.prim_index)
+        uv0, uv1, uv2 = (shape.vertex_texcoord(fi[k]) for k in range(3))
+        return _barycentric_to_uv(si.dn_du, si.dn_dv, uv1 - uv0, uv2 - uv0, True)
+    on = active & si.is_valid() & si.shape.is_mesh()
+    # Null pointers where not a mesh: calls there return zeros.
+    mesh = mi.MeshPtr(dr.select(on, si.shape, dr.zeros(mi.ShapePtr, dr.width(on))))
+    on &= mesh.has_vertex_texcoords()
+    fi = mesh.face_indices(si.prim_index, on)
+    uv0, uv1, uv2 = (mesh.vertex_texcoord(fi[k], on) for k in range(3))
+    return _barycentric_to_uv(si.dn_du, si.dn_dv, uv1 - uv0, uv2 - uv0, on)
+
+
+def _barycentric_to_uv(n1, n2, d1, d2, on):
+    """dn/duv from dn/db1 = ``n1``, dn/db2 = ``n2`` where UV = uv0 + b1 ``d1`` + b2 ``d2``
+    (unchanged where not ``on`` or the texcoords are degenerate)."""
+    det = d1.x * d2.y - d1.y * d2.x
+    ok = on & (det != 0.0)
+    inv = dr.select(ok, dr.rcp(dr.select(ok, det, 1.0)), 0.0)
+    dn_du = (n1 * d2.y - n2 * d1.y) * inv
+    dn_dv = (n2 * d1.x - n1 * d2.x) * inv
+    return dr.select(ok, dn_du, n1), dr.select(ok, dn_dv, n2)
+
+
 def _finite_or(x, value):
     return dr.select(dr.isfinite(x), x, value)
 
