@@ -453,6 +453,18 @@ def uv_sphere_mesh(radius: float, bsdf: dict, nu: int = 96, nv: int = 48):
     return mesh
 
 
+def test_normal_derivatives_are_converted_only_where_a_mesh_needs_it():
+    """Rectangles, disks and spheres give dn/duv per UV or zero (their scenes trace no
+    conversion); a triangle mesh with vertex normals and texcoords needs it, one without
+    normals does not."""
+    probe = {"type": "normal_turn_probe"}
+    flat = {"type": "scene", "a": {"type": "rectangle"}, "b": {"type": "sphere"}, "c": {"type": "disk"}}
+    assert not fp.needs_uv_normal_derivatives(mi.load_dict(flat))
+    assert fp.needs_uv_normal_derivatives(mi.load_dict(dict(flat, d=uv_sphere_mesh(1.0, probe))))
+    faceted = mi.Mesh("faceted", 3, 1, has_vertex_normals=False, has_vertex_texcoords=True)
+    assert not fp.needs_uv_normal_derivatives(mi.load_dict(dict(flat, d=faceted)))
+
+
 def test_bsdf_sees_how_far_the_normal_turns_across_the_footprint():
     """``clothpath`` hands the BSDF the normal's derivatives per UV (RayFlags.dNSdUV, which
     RayFlags.All leaves out; Mitsuba's meshes give them per barycentric unit, which

@@ -439,6 +439,7 @@ def make_clothpath_class():
             any_delta = any(mi.has_flag(e.flags(), mi.EmitterFlags.Delta) for e in emitters)
             sky = environment_radiance(scene.environment()) if any_delta else 0.0
             exact_possible = any_delta and exact_emitters_possible(emitters, sky)
+            uv_normals = fp.needs_uv_normal_derivatives(scene)
             gap_bsdfs = gap_shadows.gap_bsdfs(scene) if self.gap_shadows else []
             gaps = bool(gap_bsdfs)
             # Offsets of camera samples from their pixel centres (perspective and
@@ -494,11 +495,12 @@ def make_clothpath_class():
                     si.duv_dy = dr.select(s.delta_chain, si.duv_dy, 0.0)
                     shadow_w = dr.select(s.delta_chain, w_hit, 0.0)
                     shadow_spread = dr.select(s.delta_chain, s.cone_spread, 0.0)
-                # Per UV, as si.duv_dx, si.duv_dy (meshes give them per barycentric unit),
-                # where a footprint is handed over.
-                shaded = ((si.duv_dx.x != 0.0) | (si.duv_dx.y != 0.0) | (si.duv_dy.x != 0.0)
-                          | (si.duv_dy.y != 0.0))
-                si.dn_du, si.dn_dv = fp.uv_normal_derivatives(si, shaded & s.active)
+                if uv_normals:
+                    # Per UV, as si.duv_dx, si.duv_dy (meshes give them per barycentric
+                    # unit), where a footprint is handed over.
+                    shaded = ((si.duv_dx.x != 0.0) | (si.duv_dx.y != 0.0) | (si.duv_dy.x != 0.0)
+                              | (si.duv_dy.y != 0.0))
+                    si.dn_du, si.dn_dv = fp.uv_normal_derivatives(si, shaded & s.active)
                 if footprint_aovs:
                     record = first & si.is_valid()
                     h_u, h_v = fp.half_widths(si.duv_dx, si.duv_dy)

@@ -184,6 +184,26 @@ def world_to_uv(q, dp_du, dp_dv):
     return mi.Vector2f(_finite_or(u, DEGENERATE_UV), _finite_or(v, DEGENERATE_UV))
 
 
+#: Shapes whose si.dn_du, si.dn_dv Mitsuba gives per UV, or zero (``mi.ShapeType``: the
+#: rectangle and the disk are flat meshes; instances and anything else may hold meshes).
+_UV_DERIVATIVE_SHAPES = ("Sphere", "Cylinder", "Disk", "Rectangle", "BSplineCurve", "LinearCurve", "SDFGrid",
+                         "Ellipsoids", "EllipsoidsMesh")
+
+
+def needs_uv_normal_derivatives(scene) -> bool:
+    """Whether a shape of ``scene`` may give si.dn_du, si.dn_dv per barycentric unit with
+    UVs of its own: a triangle mesh with vertex normals and texcoords (one without normals
+    has none; one without texcoords, barycentric UVs), or a shape that may hold one. Where
+    none can, :func:`uv_normal_derivatives` is not traced (its calls cost a frame ~5%)."""
+    known = {int(getattr(mi.ShapeType, name)) for name in _UV_DERIVATIVE_SHAPES if hasattr(mi.ShapeType, name)}
+    for shape in scene.shapes():
+        if int(shape.shape_type()) in known:
+            continue
+        if not (isinstance(shape, mi.Mesh) and not (shape.has_vertex_normals() and shape.has_vertex_texcoords())):
+            return True
+    return False
+
+
 def uv_normal_derivatives(si, active=True):
     """(dn/du, dn/dv) of the shading normal per unit of texture UV, as Mitsuba's analytic
     shapes give si.dn_du, si.dn_dv (RayFlags.dNSdUV). Mitsuba 3's triangle meshes give them
