@@ -426,16 +426,9 @@ class FootprintEstimator:
         # Width across the long edge; a degenerate (line) footprint covers a texel's width.
         width = area * dr.select(length > 0.0, dr.rcp(length), 0.0)
         texels = dr.maximum(length, 1.0) * dr.maximum(width, 1.0)
-        point_texels, footprint_texels = self.blend_texels()
-        span = footprint_texels - point_texels
-        if span > 0.0:
-            p_use = dr.clip((texels - point_texels) * (1.0 / span), 0.0, 1.0)
-        else:  # no blend zone (experiments): a step at point_texels
-            p_use = dr.select(texels >= point_texels, 1.0, 0.0)
+        p_use = self._footprint_share(texels, *self.blend_texels())
         if exact_emitters is not None:
-            point_exact, whole_exact = self.EXACT_BLEND_TEXELS
-            p_exact = dr.clip((texels - point_exact) * (1.0 / (whole_exact - point_exact)), 0.0, 1.0)
-            p_use = dr.select(exact_emitters, p_exact, p_use)
+            p_use = dr.select(exact_emitters, self._footprint_share(texels, *self.EXACT_BLEND_TEXELS), p_use)
         p_use = dr.select(finite & (length > 0.0), p_use, 0.0)
         # (p_use > 0) first: a zero footprint of constant si.duv_dx/dy is then a literal
         # False, and the symbolic if traces the fibre-level branch alone.
@@ -540,6 +533,16 @@ class FootprintEstimator:
         edges = tuple(dr.select(finite, e, 0.0) for e in (ax, ay, bx, by))
         return Footprint(use=use, box=box, edges=edges, boxes=boxes, split=split, within=within,
                          point_xi=point_xi, point_known=known)
+
+    @staticmethod
+    def _footprint_share(texels, point_texels: float, footprint_texels: float):
+        """The share of samples shading a footprint of ``texels`` whole: 0 under
+        ``point_texels``, 1 over ``footprint_texels``, linear between (a step at
+        ``point_texels`` where they are equal: experiments)."""
+        span = footprint_texels - point_texels
+        if span > 0.0:
+            return dr.clip((texels - point_texels) * (1.0 / span), 0.0, 1.0)
+        return dr.select(texels >= point_texels, 1.0, 0.0)
 
     @staticmethod
     def normal_tilt(si):

@@ -199,8 +199,9 @@ def needs_uv_normal_derivatives(scene) -> bool:
     for shape in scene.shapes():
         if int(shape.shape_type()) in known:
             continue
-        if not (isinstance(shape, mi.Mesh) and not (shape.has_vertex_normals() and shape.has_vertex_texcoords())):
-            return True
+        if isinstance(shape, mi.Mesh) and not (shape.has_vertex_normals() and shape.has_vertex_texcoords()):
+            continue
+        return True
     return False
 
 
