@@ -653,13 +653,16 @@ def test_shade_hands_the_exact_mark_to_the_blend(monkeypatch):
 def test_emitter_directions_marked_exact_shade_rough_probes_texel_by_texel(monkeypatch):
     """Where clothpath marks a first hit's emitter directions exact (``exact_wos``: a sun over
     a dim sky), rough cloth's probes of few texels are shaded texel by texel there: one
-    probe, one value, the mean the SAT means and residual texels estimate; lanes not marked
-    keep the SAT estimate, and the sampled direction keeps it either way."""
+    probe, one value, the mean the SAT means and residual texels estimate. Their sampled
+    direction is weighed at the texel that lent its tangent (``EMITTER_COVERED_AT_TEXEL``):
+    the same expectation of weight x g(wo) as the footprint's f / p (g: 1, the transmitted
+    side, a lobe around the mirror direction), different values. Lanes not marked keep the
+    SAT estimate and its sample."""
     bsdf = mi.load_dict(dict(BASE, roughness=0.33))
     estimator = bsdf.estimator
     limit = estimator.emitter_covered_texels()
     assert limit > 0 and estimator.covered_texels() == 0
-    n = 8192
+    n = 65536
     wi, wo = (unit(d) for d in DIRECTIONS[1])
     # A 6 x 6 texel pixel on curved cloth: 2 x 2 cells, probes of 9 texels.
     si = sheared_si(n, [0.3, 0.55], 6.0, 0.0, wi, CURVED)
@@ -683,5 +686,14 @@ def test_emitter_directions_marked_exact_shade_rough_probes_texel_by_texel(monke
     np.testing.assert_array_equal(rest, v0[1::2])
     # Both estimate the same mean over the probe.
     assert abs(np.mean(exact) - np.mean(v0)) <= 5.0 * np.std(v0) / np.sqrt(n) + 1e-6, (np.mean(exact), np.mean(v0))
-    np.testing.assert_allclose(np.array(bs.wo), np.array(bs0.wo), rtol=1e-6, atol=1e-7)
-    np.testing.assert_allclose(np.array(weight), np.array(weight0), rtol=1e-5, atol=1e-7)
+    wo_s, wo_s0 = np.array(bs.wo), np.array(bs0.wo)
+    w, w0 = np.array(weight)[0], np.array(weight0)[0]
+    np.testing.assert_allclose(wo_s[:, 1::2], wo_s0[:, 1::2], rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(w[1::2], w0[1::2], rtol=1e-5, atol=1e-7)
+    assert np.mean(np.abs(w[0::2] - w0[0::2]) > 1e-3 * np.mean(w0)) > 0.2  # weighed at a texel
+    mirror = np.array([-wi[0], -wi[1], wi[2]])
+    for g in (lambda d: np.ones(d.shape[1]), lambda d: (d[2] < 0.0).astype(float),
+              lambda d: np.maximum(0.0, mirror @ d) ** 8):
+        a, b = w[0::2] * g(wo_s[:, 0::2]), w0[0::2] * g(wo_s0[:, 0::2])
+        tolerance = 5.0 * np.hypot(a.std(), b.std()) / np.sqrt(a.size) + 1e-4 * abs(b.mean())
+        assert abs(a.mean() - b.mean()) <= tolerance, (a.mean(), b.mean(), tolerance)

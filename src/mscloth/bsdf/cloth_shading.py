@@ -99,7 +99,8 @@ class ClothShading:
         that weighs the sample instead of the mixture's (:meth:`.FootprintEstimator.pdf`);
         ``exact_wos`` (a mask, or None): lanes whose directions ``wos`` carry most of the
         light, where rough cloth's probes of few texels are shaded texel by texel at them
-        (:meth:`.FootprintEstimator.emitter_covered_texels`).
+        (:meth:`.FootprintEstimator.emitter_covered_texels`) and their sampled direction is
+        weighed at its texel (``EMITTER_COVERED_AT_TEXEL``).
 
         Footprints of a texel or more take the multi-scale branch, smaller ones the
         fibre-level one; a symbolic if, so a packet of lanes that all take one branch
@@ -182,11 +183,17 @@ class ClothShading:
                     return estimator.eval_pdf_covered(fr, st, wo, enabled, unrolled)
                 return estimator.eval_pdf(fr, st, wo, enabled, unrolled)
 
-            sampled = estimator.sample(fr, st, enabled, *samples, active) if samples is not None else None
+            # Weigh the sampled direction at the texel that lent its tangent: shiny cloth,
+            # and lanes whose emitter directions carry most of the light.
+            weigh_at_texel = estimator.sample_at_texel() or (
+                emitters_covered and estimator.EMITTER_COVERED_AT_TEXEL)
+            sampled = None
+            if samples is not None:
+                sampled = estimator.sample(fr, st, enabled, *samples, active, weigh_at_texel)
             at_texel = None
             if sampled is not None:
                 sampled, chosen = sampled[:-1], sampled[-1]
-                if estimator.sample_at_texel():
+                if weigh_at_texel:
                     value, pdf = estimator.texel_eval_pdf(fr, st, chosen, sampled[0], enabled)
                     # (Where gradients flow the pdf's texel loop unrolls, as eval_pdf's.)
                     density = estimator.pdf(fr, st, sampled[0], enabled, self._gradients(si, fr)) if mis else pdf

@@ -350,6 +350,13 @@ class FootprintEstimator:
     EMITTER_COVERED_TEXELS_BY_ROUGHNESS = ((float("inf"), 16),)
     #: The count for every roughness instead (experiments), or None.
     EMITTER_COVERED_TEXELS = None
+    #: ... and there the sampled direction is weighed at its texel (as
+    #: SAMPLE_AT_TEXEL_BY_ROUGHNESS does for shiny cloth): the emitter directions carry
+    #: most of those lanes' light and the sampled one little, so one footprint evaluation
+    #: fewer costs little noise. Denim: time per sample 2.35x -> 1.99x brute force's,
+    #: noise per sample near / middle +13% / +4%, far and the bias unchanged (performance
+    #: log L58). The share calibration never shades these lanes (no TUNING key).
+    EMITTER_COVERED_AT_TEXEL = True
 
     #: Sum the residual texels' terms in a symbolic loop (:meth:`eval_pdf`); False: one
     #: traced copy per texel (experiments; where gradients flow, always).
@@ -1151,16 +1158,19 @@ class FootprintEstimator:
                                 label="cloth_residual_texels")
         return sums
 
-    def sample(self, fr: ViewFrame, st: FootprintState, enabled, sample1, sample2, active):
+    def sample(self, fr: ViewFrame, st: FootprintState, enabled, sample1, sample2, active, at_texel=None):
         """A direction from the footprint mixture:
         (wo mirrored, ok, component, gap_ok, gap_pdf, gap_value, the texel that lent its
-        tangent: with :meth:`sample_at_texel`, read whole for :meth:`texel_eval_pdf`)."""
+        tangent: where the sample is weighed at it, ``at_texel`` (default:
+        :meth:`sample_at_texel`), uniform over the probe whichever component is sampled
+        and read whole for :meth:`texel_eval_pdf`)."""
         texels, fp_probs, eps_c = st.texels, st.probs, st.eps_c
         # Split sample1: defensive cosine | the footprint's lobes; within the specular
         # share, which of the residual texels lends its tangent.
         pick_def_cos = sample1 < eps_c
         u = (sample1 - eps_c) / (1.0 - eps_c)
-        at_texel = self.sample_at_texel()
+        if at_texel is None:
+            at_texel = self.sample_at_texel()
         if at_texel:
             # sample1's place within the slot it falls in (a side of the defensive cosine,
             # or a lobe): uniform, and independent of the slot, so the texel it picks is
