@@ -656,8 +656,8 @@ def test_emitter_directions_marked_exact_shade_rough_probes_texel_by_texel(monke
     probe, one value, the mean the SAT means and residual texels estimate. Their sampled
     direction is weighed at the texel that lent its tangent (``EMITTER_COVERED_AT_TEXEL``):
     the same expectation of weight x g(wo) as the footprint's f / p (g: 1, the transmitted
-    side, a lobe around the mirror direction), different values. Lanes not marked keep the
-    SAT estimate and its sample."""
+    side, a lobe around the mirror direction), different values, and the density reported
+    for MIS the mixture's. Lanes not marked keep the SAT estimate and its sample."""
     bsdf = mi.load_dict(dict(BASE, roughness=0.33))
     estimator = bsdf.estimator
     limit = estimator.emitter_covered_texels()
@@ -691,6 +691,12 @@ def test_emitter_directions_marked_exact_shade_rough_probes_texel_by_texel(monke
     np.testing.assert_allclose(wo_s[:, 1::2], wo_s0[:, 1::2], rtol=1e-6, atol=1e-7)
     np.testing.assert_allclose(w[1::2], w0[1::2], rtol=1e-5, atol=1e-7)
     assert np.mean(np.abs(w[0::2] - w0[0::2]) > 1e-3 * np.mean(w0)) > 0.2  # weighed at a texel
+    # The density reported for MIS stays the mixture's, the one eval_pdf gives there.
+    smooth = np.array(mi.has_flag(bs.sampled_type, mi.BSDFFlags.Smooth)) & (np.array(bs.pdf) > 0)
+    _, at_wo, _ = bsdf.shading.shade(enabled, si, [bs.wo], None, True, exact_wos=marked)
+    on = smooth & (np.arange(n) % 2 == 0)
+    assert on.mean() > 0.3
+    np.testing.assert_allclose(np.array(bs.pdf)[on], np.array(at_wo[0])[on], rtol=1e-4)
     mirror = np.array([-wi[0], -wi[1], wi[2]])
     for g in (lambda d: np.ones(d.shape[1]), lambda d: (d[2] < 0.0).astype(float),
               lambda d: np.maximum(0.0, mirror @ d) ** 8):

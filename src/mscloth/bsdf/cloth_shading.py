@@ -95,8 +95,10 @@ class ClothShading:
         known), which picks its probe (:meth:`.FootprintEstimator.footprint`) and
         fibre-level point; ``pixel_filter``: the filter over the pixel (``box`` or ``tent``,
         ``clothpath``'s ``uv_filter``) that places them; ``mis`` False: the sample's density
-        is read only for its sign, and shiny footprints report the one given the texel
-        that weighs the sample instead of the mixture's (:meth:`.FootprintEstimator.pdf`);
+        is read only for its sign, and footprints whose sample is weighed at a texel (shiny
+        ones; rough ones where ``exact_wos`` marks their probe for texel-by-texel shading)
+        report the one given that texel instead of the mixture's
+        (:meth:`.FootprintEstimator.pdf`);
         ``exact_wos`` (a mask, or None): lanes whose directions ``wos`` carry most of the
         light, where rough cloth's probes of few texels are shaded texel by texel at them
         (:meth:`.FootprintEstimator.emitter_covered_texels`) and their sampled direction is

@@ -341,8 +341,8 @@ class FootprintEstimator:
 
     #: Where ``clothpath`` says a first hit's emitter directions carry most of its light
     #: (``exact_wos``: a sun over a dim sky), probes of at most this many covered texels
-    #: are shaded texel by texel at those directions (the sampled one by the SAT means and
-    #: residual texels), by roughness: (below, texels), first match; else none. For rough
+    #: are shaded texel by texel at those directions (the sampled one weighed at its texel:
+    #: EMITTER_COVERED_AT_TEXEL), by roughness: (below, texels), first match; else none. For rough
     #: cloth, which COVERED_TEXELS_BY_ROUGHNESS leaves out: under a sun its residual
     #: texels' noise is the pixel's (denim middle: noise per sample 0.000349 -> 0.000178,
     #: for +5% time); under a bright sky it is not, and the lanes keep the SAT means

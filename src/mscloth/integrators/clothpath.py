@@ -312,8 +312,8 @@ def sample_density_needed(emitters, scattered_footprints: bool) -> bool:
     hit an emitter that is also sampled (a non-delta one among ``emitters``, those the
     integrator samples), or for the ray cone's spread after a rough bounce
     (``scattered_footprints``). Otherwise ``eval_pdf_sample_n`` is called with ``mis``
-    False, and a BSDF may skip computing the mixture's density (``cloth``'s shiny
-    footprints: docs/decisions.md)."""
+    False, and a BSDF may skip computing the mixture's density (``cloth``'s footprints
+    whose sample is weighed at a texel: docs/decisions.md)."""
     return bool(scattered_footprints) or any(not mi.has_flag(e.flags(), mi.EmitterFlags.Delta) for e in emitters)
 
 
