@@ -1403,3 +1403,37 @@ def test_emitter_directions_are_exact_where_a_sun_outshines_the_sky(sun_cos, sky
     image = np.array(mi.render(mi.load_dict(scene), spp=4))
     np.testing.assert_allclose(image[..., 0], exact, atol=1e-6)  # the probe's value times irradiance 1
     np.testing.assert_allclose(image[..., 1], given, atol=1e-6)
+
+
+@pytest.mark.parametrize("enclosed", [False, True])
+def test_sky_control_variate_share_leaves_what_a_sky_control_variate_would(enclosed, monkeypatch):
+    """``SKY_CONTROL_VARIATE_SHARE`` c (bench/sky_control_variate.py) renders the image minus
+    c L_env A(wi) at the first hit. A diffuse square under a constant sky: in the open every cosine sample
+    escapes with weight = albedo, so the image is albedo x radiance and the residual 0;
+    inside a black sphere every sample hits it, so the image is 0 and the residual
+    -albedo x radiance (the sky it would have brought, subtracted); c = 1/2, half of either."""
+    from mscloth.integrators import clothpath
+
+    def scene():
+        d = {"type": "scene",
+             "integrator": {"type": "clothpath", "emitter_sampling": "all"},
+             "sensor": {"type": "perspective", "fov": 20,
+                        "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 4], target=[0, 0, 0], up=[0, 1, 0]),
+                        "film": {"type": "hdrfilm", "width": 16, "height": 16}},
+             "square": {"type": "rectangle",
+                        "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.5, 0.4, 0.3]}}},
+             "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [1.0, 2.0, 3.0]}}}
+        if enclosed:
+            d["shell"] = {"type": "sphere", "radius": 10.0,
+                          "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}}}
+        return mi.load_dict(d)
+
+    lit = np.array([0.5, 2 * 0.4, 3 * 0.3])
+    plain = render(scene(), 1, 0)[..., :3].reshape(-1, 3)
+    expected_plain = np.zeros(3) if enclosed else lit
+    np.testing.assert_allclose(plain, np.broadcast_to(expected_plain, plain.shape), rtol=1e-5, atol=1e-6)
+    for share in (1.0, 0.5):
+        monkeypatch.setattr(clothpath, "SKY_CONTROL_VARIATE_SHARE", share)
+        residual = render(scene(), 1, 0)[..., :3].reshape(-1, 3)
+        expected = expected_plain - share * lit
+        np.testing.assert_allclose(residual, np.broadcast_to(expected, residual.shape), rtol=1e-5, atol=1e-6)

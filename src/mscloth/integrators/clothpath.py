@@ -251,6 +251,17 @@ def _is_uniform(emitter):
 #: the pixel's noise (docs/performance-log.md L56).
 EXACT_EMITTER_RATIO = 4.0
 
+#: Experiment (``bench/sky_control_variate.py``); 0 by default (then nothing of it is
+#: traced): render only what a control variate for a uniform sky would leave to Monte
+#: Carlo. With the share c, the sky's light at a camera ray's first hit is c L_env A(wi)
+#: (A: the BSDF's non-delta directional albedo) plus what its directions bring minus c
+#: L_env each; with this set, the first hit's non-delta sampled rays that escape bring
+#: (1 - c) L_env and those that reach a surface subtract c L_env times their weight, so
+#: the image is the true one minus c L_env A(wi) and its noise what the control variate
+#: would leave with A exact (docs/performance-log.md L59). Only with ``emitter_sampling``
+#: ``all`` (the sky left to BSDF sampling).
+SKY_CONTROL_VARIATE_SHARE = 0.0
+
 
 def environment_radiance(env, n: int = 256) -> float:
     """The mean luminance of environment emitter ``env`` over the sphere (``n`` spiral
@@ -447,6 +458,18 @@ def make_clothpath_class():
             centring = fp.pixel_centring(scene, ray_d) if has_diff else None
             tent_filter = has_diff and self.uv_filter == "tent"
 
+            sky_residual = None
+            if SKY_CONTROL_VARIATE_SHARE and env_by_bsdf and jit:
+                probe = dr.zeros(mi.SurfaceInteraction3f, 1)
+                probe.wi = mi.Vector3f(0.0, 0.0, -1.0)
+                share = float(SKY_CONTROL_VARIATE_SHARE)
+                sky_radiance = mi.Spectrum(*(share * float(v)
+                                             for v in np.array(scene.environment().eval(probe)).ravel()[:3]))
+
+                def sky_residual(s):
+                    """The lanes whose ray left a camera ray's first hit in a non-delta direction."""
+                    return (s.depth == 1) & logical_not(s.prev_bsdf_delta)
+
             ray = mi.Ray3f(ray_d)
             pi = scene.ray_intersect_preliminary(ray, coherent=True, active=active)
 
@@ -529,8 +552,14 @@ def make_clothpath_class():
                         em_pdf = dr.select(si.is_valid(), em_pdf, 0.0)
                     # Only non-delta emitters can be hit, and each had n_em samples.
                     mis_bsdf = mis_weight(s.prev_bsdf_pdf, n_em * em_pdf)
-                    s.result = spec_fma(s.throughput,
-                                        ds.emitter.eval(si, s.prev_bsdf_pdf > 0.0) * mis_bsdf, s.result)
+                    emitted = ds.emitter.eval(si, s.prev_bsdf_pdf > 0.0)
+                    if sky_residual is not None:
+                        emitted = dr.select(sky_residual(s) & logical_not(si.is_valid()), emitted - sky_radiance,
+                                            emitted)
+                    s.result = spec_fma(s.throughput, emitted * mis_bsdf, s.result)
+                if sky_residual is not None:
+                    s.result = dr.select(sky_residual(s) & si.is_valid(), s.result - s.throughput * sky_radiance,
+                                         s.result)
 
                 # Continue tracing the path at this point?
                 active_next = (s.depth + 1 < max_depth) & si.is_valid()
