@@ -1411,7 +1411,8 @@ def test_sky_control_variate_share_leaves_what_a_sky_control_variate_would(enclo
     c L_env A(wi) at the first hit. A diffuse square under a constant sky: in the open every cosine sample
     escapes with weight = albedo, so the image is albedo x radiance and the residual 0;
     inside a black sphere every sample hits it, so the image is 0 and the residual
-    -albedo x radiance (the sky it would have brought, subtracted); c = 1/2, half of either."""
+    -albedo x radiance (the sky it would have brought, subtracted); c = 1/2, half of either.
+    With ``SKY_ALBEDO_SAMPLES`` the estimator is whole again: the plain image."""
     from mscloth.integrators import clothpath
 
     def scene():
@@ -1437,3 +1438,9 @@ def test_sky_control_variate_share_leaves_what_a_sky_control_variate_would(enclo
         residual = render(scene(), 1, 0)[..., :3].reshape(-1, 3)
         expected = expected_plain - share * lit
         np.testing.assert_allclose(residual, np.broadcast_to(expected, residual.shape), rtol=1e-5, atol=1e-6)
+        # The whole estimator (share x radiance x the albedo's estimate added back; a diffuse
+        # sample's weight is the albedo): the plain image, open or enclosed.
+        monkeypatch.setattr(clothpath, "SKY_ALBEDO_SAMPLES", 3)
+        whole = render(scene(), 1, 0)[..., :3].reshape(-1, 3)
+        monkeypatch.setattr(clothpath, "SKY_ALBEDO_SAMPLES", 0)
+        np.testing.assert_allclose(whole, plain, rtol=1e-5, atol=1e-6)

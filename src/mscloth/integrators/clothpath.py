@@ -261,6 +261,12 @@ EXACT_EMITTER_RATIO = 4.0
 #: would leave with A exact (docs/performance-log.md L59). Only with ``emitter_sampling``
 #: ``all`` (the sky left to BSDF sampling).
 SKY_CONTROL_VARIATE_SHARE = 0.0
+#: ... and with K > 0, the whole estimator: c L_env times A's estimate, the mean weight of
+#: K non-delta samples of the first hit's BSDF in the state of its sampled direction (a
+#: footprint's same probe), is added there. Unbiased; its noise falls towards what a table
+#: of A would leave as K grows (each sample costs one more BSDF sample, so it measures,
+#: it does not pay).
+SKY_ALBEDO_SAMPLES = 0
 
 
 def environment_radiance(env, n: int = 256) -> float:
@@ -637,6 +643,20 @@ def make_clothpath_class():
                 bsdf_vals, bsdf_pdfs, bsdf_sample, bsdf_weight = contract.call(
                     bsdf, shade_n, bsdf_ctx, si_shade, si_centred, wos, sample_1, sample_2,
                     True, pixel_offset, self.uv_filter, *exact_arg, active=active_next)
+
+                if sky_residual is not None and SKY_ALBEDO_SAMPLES:
+                    at_first = first & active_next
+                    non_delta = mi.BSDFContext()
+                    non_delta.type_mask = +mi.BSDFFlags.All & ~+mi.BSDFFlags.Delta
+                    albedo = mi.Spectrum(0.0)
+                    for _ in range(SKY_ALBEDO_SAMPLES):
+                        _, _, bs_k, weight_k = contract.call(
+                            bsdf, shade_n, non_delta, si_shade, si_centred, [], sampler.next_1d(), sampler.next_2d(),
+                            True, pixel_offset, self.uv_filter, *exact_arg, active=at_first)
+                        weight_k = si.to_world_mueller(weight_k, -bs_k.wo, si.wi)
+                        albedo += dr.select(at_first & (bs_k.pdf > 0.0), weight_k, 0.0)
+                    s.result = dr.select(at_first, spec_fma(s.throughput, albedo * sky_radiance / SKY_ALBEDO_SAMPLES,
+                                                         s.result), s.result)
 
                 # ---------------- Emitter sampling contribution ---------------
                 for (ds, em_weight, em_active, wo), bsdf_val, bsdf_pdf in zip(em_samples, bsdf_vals, bsdf_pdfs):
