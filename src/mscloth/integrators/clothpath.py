@@ -262,10 +262,10 @@ EXACT_EMITTER_RATIO = 4.0
 #: ``all`` (the sky left to BSDF sampling).
 SKY_CONTROL_VARIATE_SHARE = 0.0
 #: ... and with K > 0, the whole estimator: c L_env times A's estimate, the mean weight of
-#: K non-delta samples of the first hit's BSDF in the state of its sampled direction (a
-#: footprint's same probe), is added there. Unbiased; its noise falls towards what a table
-#: of A would leave as K grows (each sample costs one more BSDF sample, so it measures,
-#: it does not pay).
+#: K non-delta samples of the first hit's BSDF in the state of its sampled direction (the
+#: same call, emitter directions included: a footprint's same probe and branch), is added
+#: there. Unbiased; its noise falls towards what a table of A would leave as K grows (each
+#: sample costs one more BSDF sample, so it measures, it does not pay).
 SKY_ALBEDO_SAMPLES = 0
 
 
@@ -465,7 +465,10 @@ def make_clothpath_class():
             tent_filter = has_diff and self.uv_filter == "tent"
 
             sky_residual = None
-            if SKY_CONTROL_VARIATE_SHARE and env_by_bsdf and jit:
+            # (RGB only: the sky's radiance read as three numbers. Not with hide_emitters, whose
+            # paths through a Null lobe that escape are dropped with the share added back.)
+            if SKY_CONTROL_VARIATE_SHARE and env_by_bsdf and jit and mi.is_rgb and not mi.is_polarized \
+                    and not hide_emitters:
                 probe = dr.zeros(mi.SurfaceInteraction3f, 1)
                 probe.wi = mi.Vector3f(0.0, 0.0, -1.0)
                 share = float(SKY_CONTROL_VARIATE_SHARE)
@@ -646,15 +649,17 @@ def make_clothpath_class():
 
                 if sky_residual is not None and SKY_ALBEDO_SAMPLES:
                     at_first = first & active_next
-                    non_delta = mi.BSDFContext()
-                    non_delta.type_mask = +mi.BSDFFlags.All & ~+mi.BSDFFlags.Delta
                     albedo = mi.Spectrum(0.0)
                     for _ in range(SKY_ALBEDO_SAMPLES):
+                        # The full context, delta samples dropped, as the residual drops them
+                        # (a restricted context renormalises some BSDFs' weights: mask).
                         _, _, bs_k, weight_k = contract.call(
-                            bsdf, shade_n, non_delta, si_shade, si_centred, [], sampler.next_1d(), sampler.next_2d(),
+                            bsdf, shade_n, bsdf_ctx, si_shade, si_centred, wos, sampler.next_1d(), sampler.next_2d(),
                             True, pixel_offset, self.uv_filter, *exact_arg, active=at_first)
                         weight_k = si.to_world_mueller(weight_k, -bs_k.wo, si.wi)
-                        albedo += dr.select(at_first & (bs_k.pdf > 0.0), weight_k, 0.0)
+                        kept = at_first & (bs_k.pdf > 0.0) & logical_not(mi.has_flag(bs_k.sampled_type,
+                                                                                      mi.BSDFFlags.Delta))
+                        albedo += dr.select(kept, weight_k, 0.0)
                     s.result = dr.select(at_first, spec_fma(s.throughput, albedo * sky_radiance / SKY_ALBEDO_SAMPLES,
                                                          s.result), s.result)
 
