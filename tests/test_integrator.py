@@ -150,26 +150,36 @@ def test_agrees_with_path_in_expectation(name, config, emitter_sampling):
     assert worst <= 1.0, (worst, diff, se)
 
 
+#: The square's reflectance and the sky's radiance of :func:`square_under_sky`.
+SQUARE_REFLECTANCE = np.array([0.5, 0.4, 0.3])
+SKY_RADIANCE = np.array([1.0, 2.0, 3.0])
+
+
+def square_under_sky(mode="all", square_bsdf=None, **shapes):
+    """A square (diffuse SQUARE_REFLECTANCE unless ``square_bsdf``) that fills a 16 x 16
+    view, under a constant sky of SKY_RADIANCE, with ``emitter_sampling`` ``mode`` and the
+    extra ``shapes``, loaded."""
+    if square_bsdf is None:
+        square_bsdf = {"type": "diffuse", "reflectance": {"type": "rgb", "value": SQUARE_REFLECTANCE.tolist()}}
+    return mi.load_dict({
+        "type": "scene",
+        "integrator": {"type": "clothpath", "emitter_sampling": mode},
+        "sensor": {"type": "perspective", "fov": 20,  # every pixel on the square
+                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 4], target=[0, 0, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 16, "height": 16}},
+        "square": {"type": "rectangle", "bsdf": square_bsdf},
+        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": SKY_RADIANCE.tolist()}},
+        **shapes})
+
+
 def test_uniform_environment_is_left_to_bsdf_sampling():
     """A diffuse square under a constant sky only: with ``all`` the sky is reached by
     cosine-weighted BSDF samples alone, whose weight is the albedo, so every pixel on the
     square is albedo x radiance at 1 spp without noise; ``one`` (Mitsuba's MIS with uniform
     sphere samples of the sky) is noisy."""
-    def scene(mode):
-        return mi.load_dict({
-            "type": "scene",
-            "integrator": {"type": "clothpath", "emitter_sampling": mode},
-            "sensor": {"type": "perspective", "fov": 20,  # every pixel on the square
-                       "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 4], target=[0, 0, 0], up=[0, 1, 0]),
-                       "film": {"type": "hdrfilm", "width": 16, "height": 16}},
-            "square": {"type": "rectangle",
-                       "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.5, 0.4, 0.3]}}},
-            "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [1.0, 2.0, 3.0]}},
-        })
-
-    expected = np.array([0.5, 2 * 0.4, 3 * 0.3])
-    every = render(scene("all"), 1, 0)[..., :3].reshape(-1, 3)
-    one = render(scene("one"), 1, 0)[..., :3].reshape(-1, 3)
+    expected = SKY_RADIANCE * SQUARE_REFLECTANCE
+    every = render(square_under_sky("all"), 1, 0)[..., :3].reshape(-1, 3)
+    one = render(square_under_sky("one"), 1, 0)[..., :3].reshape(-1, 3)
     np.testing.assert_allclose(every, np.broadcast_to(expected, every.shape), rtol=1e-5)
     assert np.abs(one - expected).max() > 0.05
 
@@ -1415,21 +1425,10 @@ def test_sky_control_variate_share_leaves_what_a_sky_control_variate_would(enclo
     With ``SKY_ALBEDO_SAMPLES`` the estimator is whole again: the plain image."""
     from mscloth.integrators import clothpath
 
-    def scene():
-        d = {"type": "scene",
-             "integrator": {"type": "clothpath", "emitter_sampling": "all"},
-             "sensor": {"type": "perspective", "fov": 20,
-                        "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 4], target=[0, 0, 0], up=[0, 1, 0]),
-                        "film": {"type": "hdrfilm", "width": 16, "height": 16}},
-             "square": {"type": "rectangle",
-                        "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.5, 0.4, 0.3]}}},
-             "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [1.0, 2.0, 3.0]}}}
-        if enclosed:
-            d["shell"] = {"type": "sphere", "radius": 10.0,
-                          "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}}}
-        return mi.load_dict(d)
-
-    lit = np.array([0.5, 2 * 0.4, 3 * 0.3])
+    black = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}}
+    shapes = {"shell": {"type": "sphere", "radius": 10.0, "bsdf": black}} if enclosed else {}
+    scene = lambda: square_under_sky(**shapes)  # noqa: E731
+    lit = SKY_RADIANCE * SQUARE_REFLECTANCE
     plain = render(scene(), 1, 0)[..., :3].reshape(-1, 3)
     expected_plain = np.zeros(3) if enclosed else lit
     np.testing.assert_allclose(plain, np.broadcast_to(expected_plain, plain.shape), rtol=1e-5, atol=1e-6)
@@ -1456,22 +1455,13 @@ def test_sky_control_variate_is_unbiased_through_delta_lobes_and_bounces(monkeyp
     or past the first bounce, or counting delta samples in A, shifts them by 0.1-1."""
     from mscloth.integrators import clothpath
 
-    reflectance = np.array([0.5, 0.4, 0.3])
-    radiance = np.array([1.0, 2.0, 3.0])
     grey = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.5, 0.5, 0.5]}}
-    scene = lambda: mi.load_dict({  # noqa: E731
-        "type": "scene",
-        "integrator": {"type": "clothpath", "emitter_sampling": "all"},
-        "sensor": {"type": "perspective", "fov": 20,
-                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 4], target=[0, 0, 0], up=[0, 1, 0]),
-                   "film": {"type": "hdrfilm", "width": 16, "height": 16}},
-        "square": {"type": "rectangle",
-                   "bsdf": {"type": "mask", "opacity": 0.6,
-                            "bsdf": {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": {
-                                "type": "rgb", "value": reflectance.tolist()}}}}},
-        "floor": {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, 0, -1]).scale(10), "bsdf": grey},
-        "ceiling": {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, 0, 6]).scale(3), "bsdf": grey},
-        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": radiance.tolist()}}})
+    sheer = {"type": "mask", "opacity": 0.6, "bsdf": {"type": "twosided", "bsdf": {
+        "type": "diffuse", "reflectance": {"type": "rgb", "value": SQUARE_REFLECTANCE.tolist()}}}}
+    scene = lambda: square_under_sky(  # noqa: E731
+        square_bsdf=sheer,
+        floor={"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, 0, -1]).scale(10), "bsdf": grey},
+        ceiling={"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, 0, 6]).scale(3), "bsdf": grey})
 
     def pixels(seed, share=0.0, samples=0):
         monkeypatch.setattr(clothpath, "SKY_CONTROL_VARIATE_SHARE", share)
@@ -1485,7 +1475,7 @@ def test_sky_control_variate_is_unbiased_through_delta_lobes_and_bounces(monkeyp
     plain = pixels(1)
     for share in (1.0, 0.5):
         for image, shift in ((pixels(2, share, 2), 0.0),
-                             (pixels(3, share), share * radiance * 0.6 * reflectance)):
+                             (pixels(3, share), share * SKY_RADIANCE * 0.6 * SQUARE_REFLECTANCE)):
             diff = plain - image
             se = np.sqrt((plain.var(axis=0, ddof=1) + image.var(axis=0, ddof=1)) / len(plain))
             assert np.all(np.abs(diff.mean(axis=0) - shift) <= 4 * se + 1e-4), (share, shift, diff.mean(axis=0), se)

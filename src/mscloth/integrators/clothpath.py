@@ -542,6 +542,7 @@ def make_clothpath_class():
                                    for new, old in zip((h_u, h_v, t_u, t_v), s.aovs))
 
                 # ---------------------- Direct emission ----------------------
+                leaving_first = sky_residual(s) if sky_residual is not None else None
                 # (scalar: a surface without emitter has none to evaluate)
                 if any_or_true(si.emitter(scene) is not None):
                     ds = mi.DirectionSample3f(scene, si=si, ref=s.prev_si)
@@ -562,12 +563,12 @@ def make_clothpath_class():
                     # Only non-delta emitters can be hit, and each had n_em samples.
                     mis_bsdf = mis_weight(s.prev_bsdf_pdf, n_em * em_pdf)
                     emitted = ds.emitter.eval(si, s.prev_bsdf_pdf > 0.0)
-                    if sky_residual is not None:
-                        emitted = dr.select(sky_residual(s) & logical_not(si.is_valid()), emitted - sky_radiance,
+                    if leaving_first is not None:
+                        emitted = dr.select(leaving_first & logical_not(si.is_valid()), emitted - sky_radiance,
                                             emitted)
                     s.result = spec_fma(s.throughput, emitted * mis_bsdf, s.result)
-                if sky_residual is not None:
-                    s.result = dr.select(sky_residual(s) & si.is_valid(), s.result - s.throughput * sky_radiance,
+                if leaving_first is not None:
+                    s.result = dr.select(leaving_first & si.is_valid(), s.result - s.throughput * sky_radiance,
                                          s.result)
 
                 # Continue tracing the path at this point?
