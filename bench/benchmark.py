@@ -251,6 +251,25 @@ def bench_tables(repeats: int = 1) -> list[tuple]:
     return rows
 
 
+def bench_sky_tables() -> list[tuple]:
+    """(resolution, texels per cell, seconds, MiB) of building the sky albedo table
+    (:mod:`mscloth.bsdf.sky_albedo`) of a plain weave's multi-scale cloth."""
+    import mitsuba as mi
+
+    rows = []
+    for res in (128, 256, 512):
+        bsdf = mi.load_dict({"type": "cloth", "pattern": "plain", "resolution": res, "roughness": 0.3})
+        start = time.perf_counter()
+        bsdf.prepare_sky_albedo()
+        seconds = time.perf_counter() - start
+        table = bsdf.shading.sky_table
+        rows.append((res, table.block, seconds, table.nbytes / 2**20))
+        print(f"  sky albedo {res}x{res}: cells of {table.block}x{table.block} texels, {seconds:.1f} s, "
+              f"{table.nbytes / 2**20:.0f} MiB", flush=True)
+        del bsdf
+    return rows
+
+
 #: Footprint/direction configurations of the CCV bias measurement (plain weave, 128 texels).
 CCV_CASES = [  # (half-width in texels, wi, wo)
     (1.0, [0.6, -0.2, 0.77], [-0.1, 0.7, 0.7]),
@@ -552,7 +571,7 @@ def _budget_lines(budget_rows, compare_rows, res=COMPARE_RES) -> list[str]:
 
 def write_results(path: Path, command: str, variant: str, cost_rows, cost_setup, maps_seconds, maps_res,
                   table_rows=(), ccv_rows=(), compare_rows=(), budget_rows=(), call_rows=(),
-                  call_setup="", compare_res=COMPARE_RES, compare_budget=COMPARE_BUDGET) -> None:
+                  call_setup="", compare_res=COMPARE_RES, compare_budget=COMPARE_BUDGET, sky_rows=()) -> None:
     """Write bench/RESULTS.md from measured rows; a section whose rows are empty is left out
     (``--scenes-only`` runs)."""
     lines = [
@@ -566,7 +585,7 @@ def write_results(path: Path, command: str, variant: str, cost_rows, cost_setup,
     if cost_rows:
         lines += _cost_lines(cost_rows, cost_setup, call_rows, call_setup)
     if table_rows:
-        lines += _table_lines(table_rows)
+        lines += _table_lines(table_rows, sky_rows)
     if compare_rows:
         lines += _compare_lines(compare_rows, budget_rows, compare_res, compare_budget)
     if ccv_rows:
@@ -620,7 +639,7 @@ def _cost_lines(cost_rows, cost_setup, call_rows, call_setup) -> list[str]:
     return lines
 
 
-def _table_lines(table_rows) -> list[str]:
+def _table_lines(table_rows, sky_rows=()) -> list[str]:
     lines = [
         "## Multi-scale tables (plain weave, roughness 0.3, 8x8 visibility directions, 8 clusters)",
         "",
@@ -645,6 +664,17 @@ def _table_lines(table_rows) -> list[str]:
         "tests/test_multiscale.py); its per-sample cost is in the first table.",
         "",
     ]
+    if sky_rows:
+        lines += [
+            "The sky albedo table (built when `clothpath` takes a uniform sky's share by it, once per cloth;",
+            "`mscloth.bsdf.sky_albedo`): each cell's albedo at 2 x 729 incident directions, RGB.",
+            "",
+            "| tile | texels per cell | build seconds | memory MiB |",
+            "|---|---|---|---|",
+        ]
+        lines += [f"| {res}x{res} | {block}x{block} | {seconds:.1f} | {mib:.0f} |"
+                  for res, block, seconds, mib in sky_rows]
+        lines += [""]
     return lines
 
 
@@ -808,7 +838,7 @@ def main(argv=None) -> int:
 
     variant = setup_mitsuba()
     print(f"benchmark: variant {variant}", flush=True)
-    cost_rows, call_rows, maps_seconds, table_rows, ccv_rows = [], [], [], [], []
+    cost_rows, call_rows, maps_seconds, table_rows, ccv_rows, sky_rows = [], [], [], [], [], []
     lanes, maps_res = 1 << 21, 1024
     if not args.scenes_only:
         print(f"per-sample cost, demo scene {args.res}x{args.res} at {args.spp} spp:", flush=True)
@@ -819,6 +849,7 @@ def main(argv=None) -> int:
         maps_seconds = bench_map_generation(maps_res, 3)
         print("multi-scale tables:", flush=True)
         table_rows = bench_tables()
+        sky_rows = bench_sky_tables()
         print("control-variate bias:", flush=True)
         ccv_rows = bench_ccv_bias()
     scenes = list(SCENES) if args.scenes is None else args.scenes
@@ -833,7 +864,8 @@ def main(argv=None) -> int:
     write_results(out, command, variant, cost_rows, f"{args.res}x{args.res}, {args.spp} spp",
                   maps_seconds, maps_res, table_rows, ccv_rows, compare_rows, budget_rows, call_rows,
                   f"{lanes} shading points, footprints of {CALL_FOOTPRINT_TEXELS:g} texels shared by "
-                  f"{CALL_LANES_PER_UV} lanes", compare_res=args.compare_res, compare_budget=args.compare_budget)
+                  f"{CALL_LANES_PER_UV} lanes", compare_res=args.compare_res, compare_budget=args.compare_budget,
+                  sky_rows=sky_rows)
     print(f"wrote {out}")
     return 0
 

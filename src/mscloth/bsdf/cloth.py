@@ -233,17 +233,20 @@ def make_cloth_class():
             return self.eval_pdf(ctx, si, wo, active)[1]
 
         def eval_pdf_sample_n(self, ctx, si, wos, sample1, sample2, active=True, pixel_offset=None,
-                              pixel_filter="box", mis=True, exact_wos=None):
+                              pixel_filter="box", mis=True, exact_wos=None, sky_albedo=False):
             """eval_pdf at every direction of ``wos`` and one sample, sharing one footprint
             state (SAT means, visibilities, the sampling mixture: all independent of the
             outgoing direction). Called by ``clothpath`` through ``dr.dispatch``, which
             passes the camera sample's ``pixel_offset`` at first hits, its
             ``pixel_filter``, ``mis`` False where no MIS reads the sample's density and
             ``exact_wos`` where the emitters' directions carry most of the light
-            (:meth:`.ClothShading.shade`)."""
-            values, pdfs, (bs, weight) = self.shading.shade(enabled_lobes(ctx), si, wos, (sample1, sample2),
-                                                            active, pixel_offset, pixel_filter, mis, exact_wos)
-            return values, pdfs, bs, weight
+            (:meth:`.ClothShading.shade`); ``sky_albedo`` True (or a mask of lanes): also
+            the (A, known) of what it samples from, the sky albedo table's
+            (:meth:`prepare_sky_albedo`; known 0 without one), two more values."""
+            out = self.shading.shade(enabled_lobes(ctx), si, wos, (sample1, sample2), active, pixel_offset,
+                                     pixel_filter, mis, exact_wos, sky_albedo)
+            values, pdfs, (bs, weight) = out[:3]
+            return (values, pdfs, bs, weight) + (() if sky_albedo is False else tuple(out[3]))
 
         def eval_pdf_sample(self, ctx, si, wo, sample1, sample2, active=True):
             values, pdfs, bs, weight = self.eval_pdf_sample_n(ctx, si, [wo], sample1, sample2, active)
@@ -253,6 +256,44 @@ def make_cloth_class():
             """Full widths (u, v) in texels of this tile of the footprint in si.duv_dx/dy
             (the ``footprint_texels_*`` AOVs of clothpath)."""
             return self.shading.footprint_texels(si, active)
+
+        def prepare_sky_albedo(self) -> bool:
+            """Build the sky albedo table (:mod:`.sky_albedo`) if this cloth can have one and
+            has none: multi-scale cloth whose textures are constant, without parallax (the
+            table holds each texel's own A), in JIT variants. Whether it has one."""
+            shading = self.shading
+            if shading.sky_table is not None:
+                return True
+            if not (self.multiscale and dr.is_jit_v(mi.Float) and not self.build.parallax
+                    and self.footprint_data is not None) \
+                    or any(t.is_spatially_varying() for t in self.params.textures.values()):
+                return False
+            from .sky_albedo import build_sky_albedo_table, cached_table, keep_table
+
+            uv = (self._value("uv_scale"), self._value("uv_scale_v"))
+            # What the calibration is built from is what the table is built from.
+            key = self._calibration_key(*uv)
+            if (table := cached_table(key)) is not None:
+                shading.sky_table = table
+                return True
+            ctx = mi.BSDFContext()
+
+            def sample(uv, wi, sample1, sample2):
+                si = dr.zeros(mi.SurfaceInteraction3f, dr.width(uv))
+                si.uv = uv
+                si.wi = wi
+                with dr.suspend_grad():
+                    bs, weight = self.sample(ctx, si, sample1, sample2)
+                kept = bs.pdf > 0.0
+                dr.eval(weight, kept)
+                return np.asarray(weight).reshape(3, -1), np.asarray(kept)
+
+            h, w = self.maps.resolution
+            fd = self.footprint_data
+            shading.sky_table = keep_table(key, build_sky_albedo_table(sample, h, w, uv, fd.dv))
+            mi.Log(mi.LogLevel.Info, f"cloth [{self.label}]: sky albedo table {shading.sky_table.nbytes / 2**20:.1f} "
+                                     f"MiB in {shading.sky_table.seconds:.1f} s")
+            return True
 
         def gap_transmission(self, si, active=True):
             """Fraction of light crossing the cloth straight along -si.wi through its gaps
@@ -276,6 +317,7 @@ def make_cloth_class():
             all of them may have changed (Mitsuba's convention)."""
             changed = set(keys) if keys else set(EXPOSED)
             where = f"cloth [{self.label}]"
+            self.shading.sky_table = None  # built from every parameter: again on request
             for name in FLOAT_PARAMETERS:
                 if name in changed and name in EXPOSED:
                     _check_float(name, self._value(name), where)

@@ -188,14 +188,15 @@ class ResidualSATs:
         """:meth:`query` for corners at whole texel coordinates."""
         return RectQuery(self, *self._home(x0, y0, x1, y1), on_grid=True)
 
-    def integrals(self, q: RectQuery, first: int, n: int):
-        """:meth:`integral` of the ``n`` channels from ``first`` on (Python ints), read in
-        packets where the layout allows (channels in whole fours): one packet per corner
-        of a rounded query, four (bilinear) of an exact one."""
+    def integrals(self, q: RectQuery, first, n: int, aligned: bool = False):
+        """:meth:`integral` of the ``n`` channels from ``first`` on (Python ints; or
+        ``first`` a per-lane UInt32 that the caller knows to be a multiple of four:
+        ``aligned``), read in packets where the layout allows (channels in whole fours):
+        one packet per corner of a rounded query, four (bilinear) of an exact one."""
         if isinstance(q, RectUnion):
-            return q.sum_over(lambda part: self.integrals(part, first, n))
+            return q.sum_over(lambda part: self.integrals(part, first, n, aligned))
         C = self.channels
-        if not (n % 4 == 0 and first % 4 == 0 and C % 4 == 0) or self.channel_major:
+        if not (n % 4 == 0 and (aligned or first % 4 == 0) and C % 4 == 0) or self.channel_major:
             return [self.integral(q, first + j) for j in range(n)]
         totals = gather_block(self.total, mi.UInt32(first), n)
         means = gather_block(self.mean, mi.UInt32(first), n)

@@ -33,7 +33,7 @@ class FootprintBSDF(Protocol):
     footprint_shading: bool
 
     def eval_pdf_sample_n(self, ctx, si, wos, sample1, sample2, active=True, pixel_offset=None,
-                          pixel_filter="box", mis=True, exact_wos=None):
+                          pixel_filter="box", mis=True, exact_wos=None, sky_albedo=False):
         """``([value], [pdf], bs, weight)``: ``eval_pdf`` (times cos) at each direction of
         ``wos`` (local frame) and one ``sample``, sharing the work of one shading point.
         ``pixel_offset`` (``footprint_shading`` BSDFs only, at first hits): the camera
@@ -47,12 +47,19 @@ class FootprintBSDF(Protocol):
         parameter; a mask per lane, first hits only): the directions of ``wos`` (delta
         emitters' there) carry most of the light and no sampling noise of their own, so a
         BSDF's own noise at them is most of the pixel's: worth evaluating them with less,
-        at more cost. Must use ``sample1``/``sample2`` as ``sample`` would (same
-        random-number order)."""
+        at more cost; ``sky_albedo`` (optional parameter) True, or a mask of lanes: two
+        more values, ``(A, known)`` there: the mean directional albedo (RGB, delta lobes included) of the lobes the
+        sample is drawn from, i.e. its weight's expectation, and 1 where it is known (0
+        elsewhere, A 0): for ``clothpath``'s control variate of a uniform sky. Must use
+        ``sample1``/``sample2`` as ``sample`` would (same random-number order)."""
 
     def footprint_texels(self, si, active=True):
         """``(width_u, width_v)``: the footprint's full widths in texels of the BSDF's
         pattern tile (the ``footprint_texels_*`` AOVs), 0 where inactive."""
+
+    def prepare_sky_albedo(self) -> bool:
+        """Make ready what ``eval_pdf_sample_n``'s ``sky_albedo`` reads (once, before a
+        render traces); whether this BSDF gives it."""
 
     def gap_transmission(self, si, active=True):
         """The fraction of light crossing the surface straight along ``-si.wi`` through
@@ -82,14 +89,28 @@ def has_gap_transmission(bsdf) -> bool:
 
 
 def eval_pdf_sample_n(bsdf, ctx, si, si_centred, wos, sample1, sample2, active=True, pixel_offset=None,
-                      pixel_filter="box", exact_wos=None, mis=True):
+                      pixel_filter="box", exact_wos=None, mis=True, sky_albedo=False):
     """eval_pdf at each direction of ``wos`` and one sample: ([values], [pdfs], bs, weight).
 
     BSDFs with their own ``eval_pdf_sample_n`` (``cloth``) share the work of one shading
     point between all directions; those that shade whole footprints see ``si_centred``
     (uv at the pixel centre on first hits), ``pixel_offset``, ``pixel_filter`` and, where
     their method takes them, ``mis`` and ``exact_wos``. Others get eval_pdf / sample calls
-    on ``si`` (one direction: eval_pdf_sample, exactly as ``path``)."""
+    on ``si`` (one direction: eval_pdf_sample, exactly as ``path``). ``sky_albedo`` True
+    (or a Float, 1 at the lanes that want it: ``dr.dispatch`` takes a Bool argument for its
+    mask): ``(A, known)`` after them, ``(0, 0)`` from BSDFs that do not give it."""
+    if sky_albedo is not False:
+        if gives_sky_albedo(bsdf):
+            if not isinstance(sky_albedo, (bool, mi.Bool)):
+                sky_albedo = sky_albedo > 0.5
+            extra = {"mis": mis} if "mis" in inspect.signature(bsdf.eval_pdf_sample_n).parameters else {}
+            if exact_wos is not None:
+                extra["exact_wos"] = exact_wos if isinstance(exact_wos, (bool, mi.Bool)) else exact_wos > 0.5
+            return bsdf.eval_pdf_sample_n(ctx, si_centred, wos, sample1, sample2, active, pixel_offset, pixel_filter,
+                                          sky_albedo=sky_albedo, **extra)
+        out = eval_pdf_sample_n(bsdf, ctx, si, si_centred, wos, sample1, sample2, active, pixel_offset, pixel_filter,
+                                exact_wos, mis)
+        return tuple(out) + (mi.Color3f(0.0), mi.Float(0.0))
     if shades_footprints(bsdf):
         parameters = inspect.signature(bsdf.eval_pdf_sample_n).parameters
         extra = {}
@@ -116,6 +137,20 @@ def eval_pdf_sample_n(bsdf, ctx, si, si_centred, wos, sample1, sample2, active=T
         pdfs.append(pdf)
     bs, weight = bsdf.sample(ctx, si, sample1, sample2, active)
     return values, pdfs, bs, weight
+
+
+def gives_sky_albedo(bsdf) -> bool:
+    """Whether ``bsdf``'s ``eval_pdf_sample_n`` takes ``sky_albedo``."""
+    return shades_footprints(bsdf) and "sky_albedo" in inspect.signature(bsdf.eval_pdf_sample_n).parameters
+
+
+def prepare_sky_albedo(bsdf) -> bool:
+    """``bsdf.prepare_sky_albedo()`` where it gives ``sky_albedo``
+    (:func:`gives_sky_albedo`) and has one: whether its sampled direction's expected
+    weight is known."""
+    if bsdf is None or not (gives_sky_albedo(bsdf) and hasattr(bsdf, "prepare_sky_albedo")):
+        return False
+    return bool(bsdf.prepare_sky_albedo())
 
 
 def footprint_texels(bsdf, si, active=True):

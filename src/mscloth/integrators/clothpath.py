@@ -114,6 +114,18 @@ Footprint convention: the footprint of a shading point is the UV parallelogram c
        lighting noise of an environment at the cost of shadow rays and BSDF evaluations,
        which footprint BSDFs share per shading point; the texture noise of a fibre-level
        BSDF needs pixel samples instead.
+   * - sky_share
+     - float
+     - 0.5 from 2^19 samples per pass, else 0
+     - The share c of a uniform environment's light (``constant``, left to BSDF
+       sampling by ``emitter_sampling`` ``all``) that camera rays' first hits on BSDFs
+       that know their sample weight's expectation (multi-scale ``cloth``: a table of
+       each texel's albedo, built on the first render that uses it, a few seconds per
+       cloth) take whole: c L A(wi), Monte Carlo carrying only what the sampled
+       directions bring beyond c L. 0: off; 1 suits open cloth under the sky, less cloth
+       whose directions see other surfaces (docs/performance-log.md L60). Not given:
+       0.5, but off for renders of fewer samples per pass (pixels x spp), which the
+       table's build would outlast.
    * - gap_shadows
      - boolean
      - true
@@ -268,6 +280,38 @@ SKY_CONTROL_VARIATE_SHARE = 0.0
 #: sample costs one more BSDF sample, so it measures, it does not pay).
 SKY_ALBEDO_SAMPLES = 0
 
+#: The default of ``sky_share``: the share c of a uniform sky's light at a camera ray's
+#: first hit that a control variate takes whole: c L_env A(wi), A the mean albedo of what the BSDF samples its direction
+#: from (``sky_albedo`` of :mod:`.bsdf_contract`: multi-scale ``cloth``'s table), with c
+#: L_env times the weight of every sampled direction taken off, so that
+#: Monte Carlo carries only what those directions bring beyond c L_env
+#: (docs/performance-log.md L59, L60). 0: off. Only where the sky is left to BSDF sampling
+#: (``emitter_sampling`` ``all``) and at first hits whose BSDF gives A.
+SKY_TABLE_SHARE = 0.5
+#: ... for renders of at least this many samples per pass (pixels x spp, 320 x 180 at 16
+#: spp and more): a table's build (about 7 s per cloth) outlasts smaller ones (the test
+#: suite took 17 min instead of 6 with 2^17).
+SKY_TABLE_LANES = 1 << 19
+
+
+def sky_albedo_bsdfs(scene) -> list:
+    """The distinct BSDFs of ``scene``'s shapes that give their sampled direction's
+    expected weight (``sky_albedo``), their tables made ready
+    (:func:`.bsdf_contract.prepare_sky_albedo`)."""
+    found = []
+    for shape in scene.shapes():
+        bsdf = shape.bsdf()
+        if bsdf is not None and all(bsdf is not b for b in found) and contract.prepare_sky_albedo(bsdf):
+            found.append(bsdf)
+    return found
+
+
+def uniform_radiance(env) -> tuple:
+    """The RGB radiance of the uniform environment emitter ``env``."""
+    probe = dr.zeros(mi.SurfaceInteraction3f, 1)
+    probe.wi = mi.Vector3f(0.0, 0.0, -1.0)
+    return tuple(float(v) for v in np.array(env.eval(probe)).ravel()[:3])
+
 
 def environment_radiance(env, n: int = 256) -> float:
     """The mean luminance of environment emitter ``env`` over the sphere (``n`` spiral
@@ -377,6 +421,13 @@ def make_clothpath_class():
             self.footprint_aovs = _read_flag(props, "footprint_aovs")
             self.scattered_footprints = _read_flag(props, "scattered_footprints")
             self.gap_shadows = _read_flag(props, "gap_shadows")
+            # None: SKY_TABLE_SHARE for renders of SKY_TABLE_LANES samples per pass or more.
+            self.sky_share = props.get("sky_share", None)
+            if isinstance(self.sky_share, int) and not isinstance(self.sky_share, bool):
+                self.sky_share = float(self.sky_share)
+            if self.sky_share is not None and (not isinstance(self.sky_share, float)
+                                               or not 0.0 <= self.sky_share <= 1.0):
+                raise ParameterError(f'clothpath: "sky_share" must be a number in [0, 1], got {self.sky_share!r}')
 
         def aov_names(self):
             return list(AOV_NAMES) if self.footprint_aovs else []
@@ -389,7 +440,8 @@ def make_clothpath_class():
                     f"emitter_samples = {self.emitter_samples}, "
                     f"uv_filter = {self.uv_filter}, "
                     f"scattered_footprints = {self.scattered_footprints}, "
-                    f"gap_shadows = {self.gap_shadows}]")
+                    f"gap_shadows = {self.gap_shadows}, "
+                    f"sky_share = {'auto' if self.sky_share is None else self.sky_share}]")
 
         def sample(self, scene, sampler, ray, medium=None, active=True):
             if self.max_depth == 0:
@@ -478,6 +530,21 @@ def make_clothpath_class():
                 def sky_residual(s):
                     """The lanes whose ray left a camera ray's first hit in a non-delta direction."""
                     return (s.depth == 1) & logical_not(s.prev_bsdf_delta)
+
+            sky_table_radiance = None
+            # (Not with the experiment's residual, which would take the share twice.)
+            sky_share = self.sky_share
+            if sky_share is None:
+                sky_share = SKY_TABLE_SHARE if dr.width(ray_d.o) >= SKY_TABLE_LANES else 0.0
+            if sky_share and not SKY_CONTROL_VARIATE_SHARE and env_by_bsdf and jit and mi.is_rgb \
+                    and not mi.is_polarized and not hide_emitters and sky_albedo_bsdfs(scene):
+                sky_table_radiance = mi.Spectrum(*(sky_share * v
+                                                   for v in uniform_radiance(scene.environment())))
+
+
+            def shade_with_sky(bsdf, at_first, *args):
+                """``shade_n`` with (A, known) at the lanes ``at_first`` (a Float)."""
+                return shade_n(bsdf, *args, sky_albedo=at_first)
 
             ray = mi.Ray3f(ray_d)
             pi = scene.ray_intersect_preliminary(ray, coherent=True, active=active)
@@ -644,9 +711,25 @@ def make_clothpath_class():
                 # Lanes whose path ends here skip the BSDF (as path.cpp masks it with
                 # active_next): a footprint shading is costly, and its result unused.
                 exact_arg = () if exact_wos is None else (exact_wos,)
-                bsdf_vals, bsdf_pdfs, bsdf_sample, bsdf_weight = contract.call(
-                    bsdf, shade_n, bsdf_ctx, si_shade, si_centred, wos, sample_1, sample_2,
-                    True, pixel_offset, self.uv_filter, *exact_arg, active=active_next)
+                if sky_table_radiance is None:
+                    bsdf_vals, bsdf_pdfs, bsdf_sample, bsdf_weight = contract.call(
+                        bsdf, shade_n, bsdf_ctx, si_shade, si_centred, wos, sample_1, sample_2,
+                        True, pixel_offset, self.uv_filter, *exact_arg, active=active_next)
+                else:  # (A, known) too, at first hits (a Float: a Bool would be dr.dispatch's mask)
+                    bsdf_vals, bsdf_pdfs, bsdf_sample, bsdf_weight, albedo, known = contract.call(
+                        bsdf, shade_with_sky, dr.select(first, 1.0, 0.0), bsdf_ctx, si_shade, si_centred, wos,
+                        sample_1, sample_2, True, pixel_offset, self.uv_filter, *exact_arg, active=active_next)
+
+                if sky_table_radiance is not None:
+                    # The sky's share c taken whole where the BSDF knows A: c L A(wi) added,
+                    # c L times the sampled direction's weight taken off (delta ones too: a
+                    # gap's straight ray sees the sky as the others do; its
+                    # expectation is c L A: unbiased whatever the sample reaches).
+                    at_first = first & active_next
+                    sampled_weight = si.to_world_mueller(bsdf_weight, -bsdf_sample.wo, si.wi)
+                    taken = albedo - dr.select(bsdf_sample.pdf > 0.0, sampled_weight, 0.0)
+                    s.result = dr.select(at_first & (known > 0.0),
+                                         spec_fma(s.throughput, taken * sky_table_radiance, s.result), s.result)
 
                 if sky_residual is not None and SKY_ALBEDO_SAMPLES:
                     at_first = first & active_next

@@ -1,0 +1,259 @@
+"""The sky albedo table: each texel's directional albedo A(wi) (the integral of f |cos o|
+over the outgoing directions, plus what its delta lobe, the gaps, lets through), RGB, for both sides, at the
+centres of the visibility tables' direction bins, as summed-area tables.
+
+What it is for: under a uniform sky of radiance L, the light a first hit receives from the
+sky by its sampled direction has the mean c L A(wi) for any share c; ``clothpath`` adds
+that mean and leaves Monte Carlo only the rest (docs/performance-log.md L59, L60). A
+footprint's A is the mean of its texels' A, one SAT read per bin and corner, as the
+BSDF's other footprint means.
+
+Held at the nodes of :func:`node_coordinates`, bilinear between them: the centres of the
+visibility tables' direction bins, where the fibre-level BSDF's V(wi), bilinear over the
+same bins, has its kinks (read 15 degrees apart, A was off by up to 17%; performance log
+L59), and two more rows each side towards the horizon, where the fuzz and the Fresnel
+factor raise A steeply (beyond the outermost centres, at 76 degrees for 8 x 8 bins, A
+rose from 0.11 to 0.22 on the plane's twill). Built by Monte Carlo from the
+fibre-level BSDF's own samples (stratified per cell, one random shift per cell kept for
+every direction, so that A is smooth in wi and the cells' errors are independent and
+average out over a footprint).
+"""
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Callable
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..precompute.direction_bins import square_to_hemisphere
+from ..precompute.summed_area import build_sat
+from .sat_queries import RectUnion, ResidualSATs, round_box
+
+#: RGB and one zero channel per (side, node): one packet of four per corner read.
+CHANNELS_PER_BIN = 4
+
+#: Sample weights per table cell and node direction (a square number: a stratified grid).
+SAMPLES = 16
+
+#: The most a table may take: larger tiles get cells of several texels (:func:`cell_block`).
+MAX_MIB = 100.0
+
+#: The nodes beyond the outermost bin centres, as insets from the square's edge (the
+#: horizon) in bins: where the fuzz and the Fresnel factor raise A steeply, at about 80,
+#: 83, 85, 87, 88.5 and 89.4 degrees for 8 x 8 bins (the BSDF is not defined at the horizon).
+OUTER_INSETS = (0.375, 0.25, 0.178, 0.105, 0.052, 0.02)
+
+#: Nodes per bin along each axis between the outermost bin centres: 2 puts one halfway
+#: between neighbouring centres.
+NODES_PER_BIN = 2
+
+
+def nodes_per_axis(n: int) -> int:
+    return NODES_PER_BIN * (n - 1) + 1 + 2 * len(OUTER_INSETS)
+
+
+def node_coordinates(n: int) -> np.ndarray:
+    """The node coordinates along each axis of the hemisphere's square (Mitsuba's
+    ``uniform_hemisphere_to_square``; its edge is the horizon): the bin centres (k + 1/2)
+    / n of an n x n grid and ``NODES_PER_BIN - 1`` evenly between each two, then the
+    ``OUTER_INSETS`` each side."""
+    inner = (0.5 + np.arange(NODES_PER_BIN * (n - 1) + 1) / NODES_PER_BIN) / n
+    low = np.array(sorted(OUTER_INSETS)) / n
+    return np.concatenate([low, inner, 1.0 - low[::-1]])
+
+
+def node_directions(n: int) -> np.ndarray:
+    """The node directions, flat index b m + a (m = :func:`nodes_per_axis`), a along x."""
+    c = node_coordinates(n)
+    a, b = np.meshgrid(c, c, indexing="xy")
+    return square_to_hemisphere(np.stack([a.ravel(), b.ravel()], axis=-1))
+
+
+def node_interval(p, n: int):
+    """(k, f): the node interval [u_k, u_k+1] of square coordinate ``p`` and the fraction
+    across it (clamped to [0, 1] beyond the outermost nodes)."""
+    c = node_coordinates(n)
+    m, s, outer = len(c), NODES_PER_BIN, len(OUTER_INSETS)
+    k = dr.clip(dr.floor((p * n - 0.5) * s) + outer, outer, m - outer - 2)
+    for j in range(outer - 1, -1, -1):  # below the first centre
+        k = dr.select(p < c[j + 1], float(j), k)
+    for j in range(m - outer - 1, m - 1):  # beyond the last one
+        k = dr.select(p >= c[j], float(j), k)
+    nodes = mi.Float(c.astype(np.float32))  # (evaluated: one array, not literals)
+    u0 = dr.gather(mi.Float, nodes, mi.UInt32(k))
+    u1 = dr.gather(mi.Float, nodes, mi.UInt32(k) + 1)
+    return mi.UInt32(k), dr.clip((p - u0) / (u1 - u0), 0.0, 1.0)
+
+
+def node_weights(w, n: int):
+    """The four nodes around the upper-hemisphere direction ``w`` (flat indices) and
+    their bilinear weights."""
+    p = mi.warp.uniform_hemisphere_to_square(w)
+    ka, fx = node_interval(p.x, n)
+    kb, fy = node_interval(p.y, n)
+    m = nodes_per_axis(n)
+    nodes = (kb * m + ka, kb * m + ka + 1, (kb + 1) * m + ka, (kb + 1) * m + ka + 1)
+    return nodes, ((1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy)
+
+
+@dataclass
+class SkyAlbedoTable:
+    """The SATs of A (:func:`build_sky_albedo_table`) and how to read them.
+
+    Channel ``(side * m^2 + node) * 4 + c`` holds colour channel c of A for incident
+    directions at node ``node`` (:func:`node_directions` of ``dv``, the visibility tables'
+    bins per side) on side ``side`` (0: front, 1: the mirrored back); its cells are
+    ``block`` x ``block`` texels of the tile."""
+
+    sats: ResidualSATs
+    dv: int
+    block: int
+    #: Sample weights per cell and direction it was built from, and seconds it took.
+    samples: int = 0
+    seconds: float = 0.0
+
+    @property
+    def nbytes(self) -> int:
+        s = self.sats
+        return int(s.channels * (s.H + 1) * (s.W + 1) * 4)
+
+    def _first_channel(self, wi_up, back):
+        bins, weights = node_weights(wi_up, self.dv)
+        side = dr.select(back, mi.UInt32(nodes_per_axis(self.dv) ** 2), mi.UInt32(0))
+        return [(side + b) * CHANNELS_PER_BIN for b in bins], weights
+
+    def probe_albedo(self, boxes, split, use, x, y, wi_up, back, xi_round) -> mi.Color3f:
+        """The mean A over what a shading point samples its direction from, for the
+        mirrored-frame direction ``wi_up`` on side ``back``: where ``use``, the probe's
+        texel ``boxes`` (x0, y0, x1, y1; several: the parts of a probe ``split`` per lane,
+        empty parts adding nothing), else the cell under texel coordinates (x, y) (the
+        fibre-level branch's point). The boxes' corners are rounded stochastically to
+        whole cells by ``xi_round`` (one read per corner and node, the exact mean in
+        expectation); a probe that rounds to nothing reads the cell under (x, y)."""
+        b = float(self.block)
+        cells = [round_box(x0 / b, y0 / b, x1 / b, y1 / b, xi_round.x, xi_round.y) for x0, y0, x1, y1 in boxes]
+        area = sum(((x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in cells[1:]),
+                   (cells[0][2] - cells[0][0]) * (cells[0][3] - cells[0][1]))
+        point = ~mi.Bool(use) | (area < 0.5)
+        px, py = dr.floor(x / b), dr.floor(y / b)
+        first = tuple(dr.select(point, p, c) for p, c in zip((px, py, px + 1.0, py + 1.0), cells[0]))
+        rest = [tuple(dr.select(point, px, c) if k % 2 == 0 else dr.select(point, py, c) for k, c in enumerate(box))
+                for box in cells[1:]]
+        queries = [self.sats.query_on_grid(*box) for box in [first] + rest]
+        q = queries[0] if len(queries) == 1 else RectUnion(queries, mi.Bool(split) & ~point)
+        firsts, weights = self._first_channel(wi_up, back)
+        total = [mi.Float(0.0) for _ in range(3)]
+        for channel, w in zip(firsts, weights):
+            values = self.sats.integrals(q, channel, CHANNELS_PER_BIN, aligned=True)
+            for c in range(3):
+                total[c] += w * values[c]
+        inv_area = dr.rcp(dr.maximum(q.area, 1e-12))
+        return mi.Color3f(*(t * inv_area for t in total))
+
+
+#: Tables built in this process, by the cloth's calibration key (the same cloth loaded
+#: again, as a benchmark or an animation does, builds none): the last ``KEPT_TABLES``.
+_TABLES: "OrderedDict[str, SkyAlbedoTable]" = OrderedDict()
+KEPT_TABLES = 4
+
+
+def _with_settings(key: str | None) -> str | None:
+    """``key`` and this module's settings (experiments change them)."""
+    return None if key is None else f"{key}|{SAMPLES}|{MAX_MIB}|{OUTER_INSETS}|{NODES_PER_BIN}"
+
+
+def cached_table(key: str | None) -> SkyAlbedoTable | None:
+    """The table built for ``key`` in this process, if it is kept."""
+    key = _with_settings(key)
+    if key is None or key not in _TABLES:
+        return None
+    _TABLES.move_to_end(key)
+    return _TABLES[key]
+
+
+def keep_table(key: str | None, table: SkyAlbedoTable) -> SkyAlbedoTable:
+    """Keep ``table`` for ``key`` (dropping the least recently used beyond
+    ``KEPT_TABLES``); returns it."""
+    key = _with_settings(key)
+    if key is not None:
+        _TABLES[key] = table
+        while len(_TABLES) > KEPT_TABLES:
+            _TABLES.popitem(last=False)
+    return table
+
+
+def cell_block(height: int, width: int, dv: int, max_mib: float) -> int:
+    """Texels per table cell along each axis: the smallest power of two whose table
+    (2 m^2 nodes x 4 channels x cells, float32; m = :func:`nodes_per_axis`) fits ``max_mib`` and that divides the tile."""
+    block = 1
+    per_cell = 2 * nodes_per_axis(dv) ** 2 * CHANNELS_PER_BIN * 4
+    while ((height // block + 1) * (width // block + 1) * per_cell > max_mib * 2 ** 20
+           and height % (2 * block) == 0 and width % (2 * block) == 0):
+        block *= 2
+    return block
+
+
+#: (lanes' uv, lanes' local wi, sample1, sample2) -> (weight RGB as numpy (3, n), kept mask
+#: as numpy (n,)): one fibre-level sample per lane, its weight, kept where it is valid.
+SampleFn = Callable[..., tuple]
+
+
+def build_sky_albedo_table(sample: SampleFn, height: int, width: int, uv_scale: tuple[float, float], dv: int,
+                           samples: int | None = None, max_mib: float | None = None, seed: int = 7,
+                           progress: Callable[[int, int], None] | None = None) -> SkyAlbedoTable:
+    """Measure A at every cell of the tile (``height`` x ``width`` texels, texel (ix, iy) at
+    uv ((ix + 1/2) / (W uv_scale_u), ...)) for both sides at every node
+    (:func:`node_directions` of ``dv``), ``samples`` fibre-level samples per cell and direction: a
+    stratified grid in the direction sample, stratified lobe choice, a uniform point of
+    the cell, one random shift of all of them per cell (the same for every direction)."""
+    import time
+
+    start = time.perf_counter()
+    samples = SAMPLES if samples is None else samples
+    max_mib = MAX_MIB if max_mib is None else max_mib
+    block = cell_block(height, width, dv, max_mib)
+    rows, cols = height // block, width // block
+    cells = rows * cols
+    g = max(1, int(round(math.sqrt(samples))))
+    n = g * g
+    rng = np.random.default_rng(seed)
+    # Per cell: shifts of (sample1, sample2.x, sample2.y, position x, position y).
+    shift = rng.random((cells, 5))
+    k = np.arange(n)
+    # Each cell pairs the lobe choice's strata with the direction's by a permutation of
+    # its own: one permutation for all of them ties each direction stratum to one lobe
+    # (A was 2-9% off on the plane's twill, performance log L60).
+    s1 = (rng.permuted(np.tile(np.arange(n), (cells, 1)), axis=1).ravel() + np.repeat(shift[:, 0], n)) / n
+    s2x = (np.tile(k % g, cells) + np.repeat(shift[:, 1], n)) / g
+    s2y = (np.tile(k // g, cells) + np.repeat(shift[:, 2], n)) / g
+    # The cell's points: a second stratified grid, decorrelated from the direction's.
+    perm = rng.permuted(np.tile(np.arange(n), (cells, 1)), axis=1).ravel()
+    px = (perm % g + np.repeat(shift[:, 3], n)) / g
+    py = (perm // g + np.repeat(shift[:, 4], n)) / g
+    ix = np.repeat(np.arange(cells) % cols, n)
+    iy = np.repeat(np.arange(cells) // cols, n)
+    u = (ix + px) * block / (width * uv_scale[0])
+    v = (iy + py) * block / (height * uv_scale[1])
+    uv = mi.Point2f(u.astype(np.float32), v.astype(np.float32))
+    sample1 = mi.Float(np.fmod(s1, 1.0).astype(np.float32))
+    sample2 = mi.Point2f(np.fmod(s2x, 1.0).astype(np.float32), np.fmod(s2y, 1.0).astype(np.float32))
+    centres = node_directions(dv)
+    n_dirs = len(centres)
+    values = np.zeros((2 * n_dirs, CHANNELS_PER_BIN, rows, cols), dtype=np.float64)
+    for side in range(2):
+        for b, c in enumerate(centres):
+            # Opaque: one kernel for every direction, not one compiled per literal.
+            wi = mi.Vector3f(*(dr.opaque(mi.Float, float(v)) for v in (c[0], c[1], c[2] * (1.0 if side == 0 else -1.0))))
+            weight, kept = sample(uv, wi, sample1, sample2)
+            w = np.where(kept[None], weight, 0.0).reshape(3, cells, n).mean(axis=2)
+            values[side * n_dirs + b, :3] = w.reshape(3, rows, cols)
+            if progress is not None:
+                progress(side * n_dirs + b + 1, 2 * n_dirs)
+    sat, mean = build_sat(values.reshape(-1, rows, cols))
+    # Channel-minor: a corner's four channels of one bin in one packet.
+    table = SkyAlbedoTable(ResidualSATs(sat, mean), dv, block, n, time.perf_counter() - start)
+    return table

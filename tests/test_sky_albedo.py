@@ -1,0 +1,182 @@
+"""The sky albedo table (:mod:`mscloth.bsdf.sky_albedo`) and ``clothpath``'s control
+variate for a uniform sky that reads it (``sky_share``, docs/performance-log.md L60).
+
+The table must give what the footprint BSDF's sampled direction weighs on average (its
+directional albedo over the probe, the gaps' delta transmission included): that is what keeps the control variate
+unbiased. Checked against the mean weight of the BSDF's own samples, on rough and shiny
+cloth, both sides, from the pole to grazing; then in a render, where the image must keep
+its mean and lose most of its noise."""
+from __future__ import annotations
+
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import mscloth
+from mscloth import validation
+from mscloth.bsdf import sky_albedo
+from mscloth.integrators import bsdf_contract as contract
+
+from cloth_fixtures import N_TEXELS, direction
+
+mscloth.register()
+
+ROUGH = {"type": "cloth", "pattern": "plain", "roughness": 0.4}
+#: Shiny satin, as the `satin` scene's (tests/test_footprint_shiny.py).
+SATIN = {"type": "cloth", "pattern": "satin-8-3", "resolution": N_TEXELS, "thickness": 2.0, "roughness": 0.1,
+         "specular_albedo": 0.8, "specular_transmittance": 0.3, "diffuse_albedo": 0.1,
+         "diffuse_transmittance": 0.05, "sheen_thickness": 0.1}
+
+#: What the table may differ by from the sampled weights' mean over a whole tile (its own
+#: Monte Carlo error there is ~0.3%): bilinear reads between its nodes (1-3% at 70-80
+#: degrees on the plane's twill, performance log L60).
+APPROXIMATION = 0.03
+
+
+def test_nodes_hold_every_bin_centre_and_interpolate_the_square_exactly():
+    """The visibility tables' bin centres are nodes (V(wi) is bilinear between them, so A
+    has its kinks there); between nodes the weights reproduce the square coordinate and
+    sum to one; the outermost nodes reach the horizon."""
+    import drjit as dr
+
+    for n in (4, 8, 16):
+        c = sky_albedo.node_coordinates(n)
+        assert len(c) == sky_albedo.nodes_per_axis(n)
+        assert np.all(np.diff(c) > 0)
+        centres = (np.arange(n) + 0.5) / n
+        assert np.all(np.min(np.abs(c[None] - centres[:, None]), axis=1) < 1e-12)
+        assert c[0] < 0.01 / n * 3 and c[-1] > 1 - 0.01 / n * 3
+        p = np.linspace(c[0], c[-1], 4001).astype(np.float32)
+        k, f = sky_albedo.node_interval(mi.Float(p), n)
+        k, f = np.array(k), np.array(f)
+        np.testing.assert_allclose(c[k] * (1 - f) + c[k + 1] * f, p, atol=2e-6)
+    w = mi.Vector3f(*np.array([direction(th, ph) for th in (0, 30, 60, 80, 89) for ph in (0, 37, 90, 200)]).T)
+    nodes, weights = sky_albedo.node_weights(w, 8)
+    np.testing.assert_allclose(sum(np.array(x) for x in weights), 1.0, atol=1e-6)
+    m = sky_albedo.nodes_per_axis(8)
+    assert all(np.array(b).max() < m * m for b in nodes)
+    dr.eval()
+
+
+def mean_sampled_weight(bsdf, si, n, seed=1):
+    """The mean weight of the BSDF's samples at ``si`` (the gaps' delta ones included) and
+    its standard error, per channel."""
+    sampler = mi.load_dict({"type": "independent"})
+    sampler.seed(seed, n)
+    bs, weight = bsdf.sample(mi.BSDFContext(), si, sampler.next_1d(), sampler.next_2d())
+    kept = np.asarray(bs.pdf > 0)
+    w = np.where(kept, np.asarray(weight), 0.0)
+    return w.mean(axis=1), w.std(axis=1) / np.sqrt(n)
+
+
+@pytest.fixture(scope="module")
+def tables():
+    """The two cloths, their tables built."""
+    out = {}
+    for name, params in (("rough", ROUGH), ("shiny", SATIN)):
+        bsdf = mi.load_dict(params)
+        assert bsdf.prepare_sky_albedo()
+        out[name] = bsdf
+    return out
+
+
+@pytest.mark.parametrize("cloth", ["rough", "shiny"])
+@pytest.mark.parametrize("theta, phi, back", [(5, 20, False), (40, 37, False), (70, 37, False), (80, 120, False),
+                                               (86, 37, False), (35, 60, True), (84, 10, True)])
+def test_table_gives_the_mean_weight_of_the_footprint_samples(tables, cloth, theta, phi, back):
+    """Over a footprint of one whole tile (the table's own Monte Carlo error is small there),
+    the table's A is the mean weight of the footprint BSDF's samples, within the
+    stated approximation of its bilinear reads. A table built with one random pairing of
+    lobe and direction strata for every cell was 2-9% off; one without nodes beyond the bin
+    centres, 9% at 85 degrees; one side read for the other, far more."""
+    bsdf = tables[cloth]
+    n = 200_000
+    wi = direction(theta, phi, back)
+    si = validation.footprint_interaction(n, [0.3, 0.55], N_TEXELS / 2, N_TEXELS, wi)
+    si.p = mi.Point3f(*np.random.default_rng(3).random((3, n)))
+    mean, err = mean_sampled_weight(bsdf, si, n)
+    half = mi.Float(0.5)
+    albedo, known = bsdf.eval_pdf_sample_n(mi.BSDFContext(), si, [], half, mi.Point2f(half, half),
+                                           sky_albedo=True)[4:]
+    assert np.all(np.asarray(known) == 1.0)
+    table = np.asarray(albedo).mean(axis=1)
+    tolerance = 5 * err + APPROXIMATION * mean
+    assert np.all(np.abs(table - mean) <= tolerance), (table, mean, tolerance)
+
+
+def test_fibre_level_and_textured_cloth_have_no_table():
+    """Only multi-scale cloth with constant textures has a table: brute force shades at
+    texels (its A would be each texel's), a spatially varying texture would make A vary
+    beyond the tile."""
+    assert not contract.prepare_sky_albedo(mi.load_dict(dict(ROUGH, multiscale=False)))
+    image = np.random.default_rng(1).uniform(0.2, 0.4, (4, 4, 3)).astype(np.float32)
+    textured = dict(ROUGH, diffuse_albedo={"type": "bitmap", "bitmap": mi.Bitmap(image)})
+    assert not contract.prepare_sky_albedo(mi.load_dict(textured))
+    assert not contract.prepare_sky_albedo(mi.load_dict({"type": "diffuse"}))
+
+
+def test_a_changed_parameter_drops_the_table():
+    bsdf = mi.load_dict(ROUGH)
+    assert bsdf.prepare_sky_albedo()
+    before = bsdf.shading.sky_table
+    params = mi.traverse(bsdf)
+    params["diffuse_albedo.value"] = 0.3
+    params.update()
+    assert bsdf.shading.sky_table is None
+    assert bsdf.prepare_sky_albedo() and bsdf.shading.sky_table is not before
+
+
+def cloth_under_sky(bsdf_params, uv_tiles: float, sky_share: float):
+    """A cloth square filling a 16 x 16 view from above at 35 degrees, under a constant sky
+    only, ``uv_tiles`` tiles across, rendered by ``clothpath`` with ``sky_share``."""
+    return mi.load_dict({
+        "type": "scene",
+        "integrator": {"type": "clothpath", "emitter_sampling": "all", "sky_share": sky_share},
+        "sensor": {"type": "perspective", "fov": 12,
+                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, -2.3, 3.3], target=[0, 0, 0], up=[0, 0, 1]),
+                   "film": {"type": "hdrfilm", "width": 16, "height": 16}},
+        "square": {"type": "rectangle",
+                   "bsdf": dict(bsdf_params, uv_scale=uv_tiles) if bsdf_params["type"] == "cloth" else bsdf_params},
+        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [1.0, 2.0, 3.0]}}})
+
+
+@pytest.mark.parametrize("share", [0.5, 1.0])
+def test_sky_control_variate_keeps_the_mean_and_cuts_the_noise(share):
+    """Open cloth under a sky: with the share c taken by the control variate the image
+    keeps its mean (the whole frame, to the renders' standard error plus the table's
+    approximation times c) and its noise per pixel falls (c = 1 on open cloth leaves only
+    the floor's light to chance; the gaps' straight rays see the sky as the others do).
+    Leaving the delta samples out of A, or reading the other side's A, moves the mean by
+    more than that."""
+    scene = cloth_under_sky(ROUGH, 40.0, 0.0)
+    spp, renders = 4, 6
+    plain = np.array([np.asarray(mi.render(scene, spp=spp, seed=s))[..., :3] for s in range(renders)])
+    scene = cloth_under_sky(ROUGH, 40.0, share)
+    taken = np.array([np.asarray(mi.render(scene, spp=spp, seed=100 + s))[..., :3] for s in range(renders)])
+    assert np.all(np.isfinite(taken))
+    # Each render's frame mean: independent estimates of one number per method.
+    a, b = plain.mean(axis=(1, 2)), taken.mean(axis=(1, 2))
+    err = np.hypot(a.std(axis=0, ddof=1), b.std(axis=0, ddof=1)) / np.sqrt(renders)
+    tolerance = 5 * err + share * APPROXIMATION * a.mean(axis=0)
+    assert np.all(np.abs(b.mean(axis=0) - a.mean(axis=0)) <= tolerance), (b.mean(axis=0), a.mean(axis=0), tolerance)
+    # Noise per pixel: its variance across renders, averaged over the frame.
+    noise_plain = plain.var(axis=0, ddof=1).mean()
+    noise_taken = taken.var(axis=0, ddof=1).mean()
+    assert noise_taken < (0.5 if share < 1 else 0.1) * noise_plain, (noise_taken, noise_plain)
+
+
+def test_scenes_without_a_table_render_as_before():
+    """A sky over a diffuse square: no BSDF gives A, nothing of the control variate is
+    traced, the image is the same to the bit."""
+    params = {"type": "diffuse"}
+    before = np.asarray(mi.render(cloth_under_sky(params, 1.0, 0.0), spp=2, seed=3))
+    after = np.asarray(mi.render(cloth_under_sky(params, 1.0, 1.0), spp=2, seed=3))
+    np.testing.assert_array_equal(before, after)
+
+
+@pytest.mark.parametrize("value", [-0.1, 1.5, "half", True])
+def test_sky_share_outside_zero_to_one_is_refused_in_one_line(value):
+    with pytest.raises(Exception) as info:
+        mi.load_dict({"type": "clothpath", "sky_share": value})
+    message = str(info.value)
+    assert '"sky_share" must be a number in [0, 1]' in message and str(value) in message
