@@ -1,6 +1,6 @@
 """The sky albedo table: each texel's directional albedo A(wi) (the integral of f |cos o|
-over the outgoing directions, plus what its delta lobe, the gaps, lets through), RGB, for both sides, at the
-centres of the visibility tables' direction bins, as summed-area tables.
+over the outgoing directions, plus what its delta lobe, the gaps, lets through), RGB, for
+both sides, at the nodes of :func:`node_coordinates`, as summed-area tables.
 
 What it is for: under a uniform sky of radiance L, the light a first hit receives from the
 sky by its sampled direction has the mean c L A(wi) for any share c; ``clothpath`` adds
@@ -11,7 +11,8 @@ BSDF's other footprint means.
 Held at the nodes of :func:`node_coordinates`, bilinear between them: the centres of the
 visibility tables' direction bins, where the fibre-level BSDF's V(wi), bilinear over the
 same bins, has its kinks (read 15 degrees apart, A was off by up to 17%; performance log
-L59), and two more rows each side towards the horizon, where the fuzz and the Fresnel
+L59), ``NODES_PER_BIN - 1`` between each two, and six more rows each side towards the
+horizon, where the fuzz and the Fresnel
 factor raise A steeply (beyond the outermost centres, at 76 degrees for 8 x 8 bins, A
 rose from 0.11 to 0.22 on the plane's twill). Built by Monte Carlo from the
 fibre-level BSDF's own samples (stratified per cell, one random shift per cell kept for

@@ -99,15 +99,7 @@ def eval_pdf_sample_n(bsdf, ctx, si, si_centred, wos, sample1, sample2, active=T
     on ``si`` (one direction: eval_pdf_sample, exactly as ``path``). ``sky_albedo`` True
     (or a Float, 1 at the lanes that want it: ``dr.dispatch`` takes a Bool argument for its
     mask): ``(A, known)`` after them, ``(0, 0)`` from BSDFs that do not give it."""
-    if sky_albedo is not False:
-        if gives_sky_albedo(bsdf):
-            if not isinstance(sky_albedo, (bool, mi.Bool)):
-                sky_albedo = sky_albedo > 0.5
-            extra = {"mis": mis} if "mis" in inspect.signature(bsdf.eval_pdf_sample_n).parameters else {}
-            if exact_wos is not None:
-                extra["exact_wos"] = exact_wos if isinstance(exact_wos, (bool, mi.Bool)) else exact_wos > 0.5
-            return bsdf.eval_pdf_sample_n(ctx, si_centred, wos, sample1, sample2, active, pixel_offset, pixel_filter,
-                                          sky_albedo=sky_albedo, **extra)
+    if sky_albedo is not False and not gives_sky_albedo(bsdf):
         out = eval_pdf_sample_n(bsdf, ctx, si, si_centred, wos, sample1, sample2, active, pixel_offset, pixel_filter,
                                 exact_wos, mis)
         return tuple(out) + (mi.Color3f(0.0), mi.Float(0.0))
@@ -119,6 +111,8 @@ def eval_pdf_sample_n(bsdf, ctx, si, si_centred, wos, sample1, sample2, active=T
         if exact_wos is not None and "exact_wos" in parameters:
             # (clothpath hands it over as a Float: dr.dispatch takes a Bool for its mask.)
             extra["exact_wos"] = exact_wos if isinstance(exact_wos, (bool, mi.Bool)) else exact_wos > 0.5
+        if sky_albedo is not False:  # (given: gives_sky_albedo)
+            extra["sky_albedo"] = sky_albedo if isinstance(sky_albedo, (bool, mi.Bool)) else sky_albedo > 0.5
         if extra:
             return bsdf.eval_pdf_sample_n(ctx, si_centred, wos, sample1, sample2, active, pixel_offset, pixel_filter,
                                           **extra)
@@ -142,6 +136,17 @@ def eval_pdf_sample_n(bsdf, ctx, si, si_centred, wos, sample1, sample2, active=T
 def gives_sky_albedo(bsdf) -> bool:
     """Whether ``bsdf``'s ``eval_pdf_sample_n`` takes ``sky_albedo``."""
     return shades_footprints(bsdf) and "sky_albedo" in inspect.signature(bsdf.eval_pdf_sample_n).parameters
+
+
+def distinct_bsdfs(scene, keep) -> list:
+    """The distinct BSDFs of ``scene``'s shapes for which ``keep(bsdf)`` is true (asked
+    once per BSDF)."""
+    found = []
+    for shape in scene.shapes():
+        bsdf = shape.bsdf()
+        if bsdf is not None and all(bsdf is not b for b in found) and keep(bsdf):
+            found.append(bsdf)
+    return found
 
 
 def prepare_sky_albedo(bsdf) -> bool:

@@ -298,12 +298,7 @@ def sky_albedo_bsdfs(scene) -> list:
     """The distinct BSDFs of ``scene``'s shapes that give their sampled direction's
     expected weight (``sky_albedo``), their tables made ready
     (:func:`.bsdf_contract.prepare_sky_albedo`)."""
-    found = []
-    for shape in scene.shapes():
-        bsdf = shape.bsdf()
-        if bsdf is not None and all(bsdf is not b for b in found) and contract.prepare_sky_albedo(bsdf):
-            found.append(bsdf)
-    return found
+    return contract.distinct_bsdfs(scene, contract.prepare_sky_albedo)
 
 
 def uniform_radiance(env) -> tuple:
@@ -521,11 +516,8 @@ def make_clothpath_class():
             # paths through a Null lobe that escape are dropped with the share added back.)
             if SKY_CONTROL_VARIATE_SHARE and env_by_bsdf and jit and mi.is_rgb and not mi.is_polarized \
                     and not hide_emitters:
-                probe = dr.zeros(mi.SurfaceInteraction3f, 1)
-                probe.wi = mi.Vector3f(0.0, 0.0, -1.0)
                 share = float(SKY_CONTROL_VARIATE_SHARE)
-                sky_radiance = mi.Spectrum(*(share * float(v)
-                                             for v in np.array(scene.environment().eval(probe)).ravel()[:3]))
+                sky_radiance = mi.Spectrum(*(share * v for v in uniform_radiance(scene.environment())))
 
                 def sky_residual(s):
                     """The lanes whose ray left a camera ray's first hit in a non-delta direction."""
@@ -540,7 +532,6 @@ def make_clothpath_class():
                     and not mi.is_polarized and not hide_emitters and sky_albedo_bsdfs(scene):
                 sky_table_radiance = mi.Spectrum(*(sky_share * v
                                                    for v in uniform_radiance(scene.environment())))
-
 
             def shade_with_sky(bsdf, at_first, *args):
                 """``shade_n`` with (A, known) at the lanes ``at_first`` (a Float)."""

@@ -32,12 +32,7 @@ MAX_CROSSINGS = 8
 
 def gap_bsdfs(scene) -> list:
     """The distinct BSDFs of ``scene``'s shapes that have ``gap_transmission``."""
-    found = []
-    for shape in scene.shapes():
-        bsdf = shape.bsdf()
-        if contract.has_gap_transmission(bsdf) and all(bsdf is not b for b in found):
-            found.append(bsdf)
-    return found
+    return contract.distinct_bsdfs(scene, contract.has_gap_transmission)
 
 
 def has_gap_transmission(scene) -> bool:
