@@ -270,6 +270,26 @@ def bench_sky_tables() -> list[tuple]:
     return rows
 
 
+def bench_sky_shares(scenes, res) -> list[tuple]:
+    """(scene, share, c*, variance cut, seconds) of ``clothpath``'s sky_share auto in each
+    scene at 16 spp (:mod:`mscloth.integrators.sky_share_pilot`), its tables built first."""
+    from mscloth.evaluation.error_budget import lit_scene
+
+    rows = []
+    for name in scenes:
+        scene = lit_scene(name, *res, True)
+        integrator = scene.integrator()
+        if not integrator.sky_table_possible(scene):
+            continue
+        start = time.perf_counter()
+        pilot = integrator.pilot_sky_share(scene, 16)
+        rows.append((name, pilot.share, pilot.optimal, pilot.variance_cut, time.perf_counter() - start))
+        print(f"  sky share {name}: {pilot.share:.2f} (c* {pilot.optimal:.2f}, cut {pilot.variance_cut:.3f})",
+              flush=True)
+        del scene, integrator
+    return rows
+
+
 #: Footprint/direction configurations of the CCV bias measurement (plain weave, 128 texels).
 CCV_CASES = [  # (half-width in texels, wi, wo)
     (1.0, [0.6, -0.2, 0.77], [-0.1, 0.7, 0.7]),
@@ -571,7 +591,8 @@ def _budget_lines(budget_rows, compare_rows, res=COMPARE_RES) -> list[str]:
 
 def write_results(path: Path, command: str, variant: str, cost_rows, cost_setup, maps_seconds, maps_res,
                   table_rows=(), ccv_rows=(), compare_rows=(), budget_rows=(), call_rows=(),
-                  call_setup="", compare_res=COMPARE_RES, compare_budget=COMPARE_BUDGET, sky_rows=()) -> None:
+                  call_setup="", compare_res=COMPARE_RES, compare_budget=COMPARE_BUDGET, sky_rows=(),
+                  share_rows=()) -> None:
     """Write bench/RESULTS.md from measured rows; a section whose rows are empty is left out
     (``--scenes-only`` runs)."""
     lines = [
@@ -585,7 +606,7 @@ def write_results(path: Path, command: str, variant: str, cost_rows, cost_setup,
     if cost_rows:
         lines += _cost_lines(cost_rows, cost_setup, call_rows, call_setup)
     if table_rows:
-        lines += _table_lines(table_rows, sky_rows)
+        lines += _table_lines(table_rows, sky_rows, share_rows)
     if compare_rows:
         lines += _compare_lines(compare_rows, budget_rows, compare_res, compare_budget)
     if ccv_rows:
@@ -639,7 +660,7 @@ def _cost_lines(cost_rows, cost_setup, call_rows, call_setup) -> list[str]:
     return lines
 
 
-def _table_lines(table_rows, sky_rows=()) -> list[str]:
+def _table_lines(table_rows, sky_rows=(), share_rows=()) -> list[str]:
     lines = [
         "## Multi-scale tables (plain weave, roughness 0.3, 8x8 visibility directions, 8 clusters)",
         "",
@@ -674,6 +695,19 @@ def _table_lines(table_rows, sky_rows=()) -> list[str]:
         ]
         lines += [f"| {res}x{res} | {block}x{block} | {seconds:.1f} | {mib:.0f} |"
                   for res, block, seconds, mib in sky_rows]
+        lines += [""]
+    if share_rows:
+        lines += [
+            "The sky's share (`clothpath` `sky_share` auto, 16 spp): what the pilot render measured per scene",
+            "(`mscloth.integrators.sky_share_pilot`): c* leaves the least noise; the share is c* in [0, 1], or 0",
+            "where its cut in a pixel's relative variance is under the table's reads' price. Seconds: the",
+            "pilot with its kernel's compilation (Dr.Jit caches it on disk).",
+            "",
+            "| scene | share | c* | variance cut | seconds |",
+            "|---|---|---|---|---|",
+        ]
+        lines += [f"| {name} | {share:.2f} | {optimal:.2f} | {cut:.3f} | {seconds:.1f} |"
+                  for name, share, optimal, cut, seconds in share_rows]
         lines += [""]
     return lines
 
@@ -838,7 +872,7 @@ def main(argv=None) -> int:
 
     variant = setup_mitsuba()
     print(f"benchmark: variant {variant}", flush=True)
-    cost_rows, call_rows, maps_seconds, table_rows, ccv_rows, sky_rows = [], [], [], [], [], []
+    cost_rows, call_rows, maps_seconds, table_rows, ccv_rows, sky_rows, share_rows = [], [], [], [], [], [], []
     lanes, maps_res = 1 << 21, 1024
     if not args.scenes_only:
         print(f"per-sample cost, demo scene {args.res}x{args.res} at {args.spp} spp:", flush=True)
@@ -853,6 +887,8 @@ def main(argv=None) -> int:
         print("control-variate bias:", flush=True)
         ccv_rows = bench_ccv_bias()
     scenes = list(SCENES) if args.scenes is None else args.scenes
+    if not args.scenes_only:
+        share_rows = bench_sky_shares(scenes, args.compare_res)
     print("multi-scale vs brute force (mscloth compare):", flush=True)
     compare_rows = bench_compare(scenes, args.compare_res, args.compare_budget)
     print("error budget (noise per sample, bias):", flush=True)
@@ -865,7 +901,7 @@ def main(argv=None) -> int:
                   maps_seconds, maps_res, table_rows, ccv_rows, compare_rows, budget_rows, call_rows,
                   f"{lanes} shading points, footprints of {CALL_FOOTPRINT_TEXELS:g} texels shared by "
                   f"{CALL_LANES_PER_UV} lanes", compare_res=args.compare_res, compare_budget=args.compare_budget,
-                  sky_rows=sky_rows)
+                  sky_rows=sky_rows, share_rows=share_rows)
     print(f"wrote {out}")
     return 0
 

@@ -126,18 +126,30 @@ def test_a_changed_parameter_drops_the_table():
     assert bsdf.prepare_sky_albedo() and bsdf.shading.sky_table is not before
 
 
-def cloth_under_sky(bsdf_params, uv_tiles: float, sky_share: float):
+def cloth_under_sky(bsdf_params, uv_tiles: float, sky_share: float | None, roof: bool = False, crop=None):
     """A cloth square filling a 16 x 16 view from above at 35 degrees, under a constant sky
-    only, ``uv_tiles`` tiles across, rendered by ``clothpath`` with ``sky_share``."""
-    return mi.load_dict({
+    only, ``uv_tiles`` tiles across, rendered by ``clothpath`` with ``sky_share`` (None:
+    auto); with ``roof``, a black square 4 units above it (above the camera too) hides all
+    but the last 5 degrees above the horizon; ``crop``: the film's (x, y, width, height)."""
+    integrator = {"type": "clothpath", "emitter_sampling": "all"}
+    if sky_share is not None:
+        integrator["sky_share"] = sky_share
+    film = {"type": "hdrfilm", "width": 16, "height": 16}
+    if crop is not None:
+        film.update(crop_offset_x=crop[0], crop_offset_y=crop[1], crop_width=crop[2], crop_height=crop[3])
+    scene = {
         "type": "scene",
-        "integrator": {"type": "clothpath", "emitter_sampling": "all", "sky_share": sky_share},
+        "integrator": integrator,
         "sensor": {"type": "perspective", "fov": 12,
                    "to_world": mi.ScalarTransform4f().look_at(origin=[0, -2.3, 3.3], target=[0, 0, 0], up=[0, 0, 1]),
-                   "film": {"type": "hdrfilm", "width": 16, "height": 16}},
+                   "film": film},
         "square": {"type": "rectangle",
                    "bsdf": dict(bsdf_params, uv_scale=uv_tiles) if bsdf_params["type"] == "cloth" else bsdf_params},
-        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [1.0, 2.0, 3.0]}}})
+        "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [1.0, 2.0, 3.0]}}}
+    if roof:
+        scene["roof"] = {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, 0, 4]).scale(50),
+                         "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.0, 0.0, 0.0]}}}
+    return mi.load_dict(scene)
 
 
 @pytest.mark.parametrize("share", [0.5, 1.0])
@@ -180,3 +192,101 @@ def test_sky_share_outside_zero_to_one_is_refused_in_one_line(value):
         mi.load_dict({"type": "clothpath", "sky_share": value})
     message = str(info.value)
     assert '"sky_share" must be a number in [0, 1]' in message and str(value) in message
+
+
+# ----------------------------------------------------------------------------- sky_share auto
+
+
+def pilot_data(n, coefficient, noise, seed=5):
+    """Two renders' and a third's pixel estimates (F, T, M) of ``n`` pixels where F = 5 -
+    ``coefficient`` T + independent noise of deviation ``noise``, T of unit deviation."""
+    rng = np.random.default_rng(seed)
+    T = rng.normal(0.0, 1.0, (3, n))
+    F = 5.0 - coefficient * T + rng.normal(0.0, noise, (3, n))
+    return F[:2], T[:2], F[2]
+
+
+def test_pilot_statistics_find_the_coefficient_and_what_it_cuts():
+    """c* = -Cov(F, T) / Var(T) from two renders' differences, the cut 1 - Var(F + c T) /
+    Var(F) at c* clipped to [0, 1], and no share where the cut is below MIN_VARIANCE_CUT.
+    Tolerances: 5 standard errors for n pixels (c*: noise / sqrt(2 n) with unit Var(T);
+    the cut's relative error ~ sqrt(2 / n))."""
+    from mscloth.integrators import sky_share_pilot as pilot
+
+    n = 20_000
+    p = pilot.choose_share(*pilot_data(n, 0.6, 0.5))
+    assert abs(p.optimal - 0.6) < 5 * 0.5 / np.sqrt(2 * n)
+    assert p.share == p.optimal
+    assert abs(p.variance_cut - 0.36 / 0.61) < 5 * np.sqrt(2 / n)
+    # Beyond 1: the share is clipped, the cut is the one at c = 1 (Var(F) = 2.25 + 0.25).
+    p = pilot.choose_share(*pilot_data(n, 1.5, 0.5))
+    assert p.share == 1.0 and abs(p.optimal - 1.5) < 0.02
+    assert abs(p.variance_cut - (1 - (0.25 + 0.25) / 2.5)) < 5 * np.sqrt(2 / n)
+    # A little correlation: c* ~ 0.1 cuts ~1%, less than the reads cost: no share.
+    p = pilot.choose_share(*pilot_data(n, 0.1, 1.0))
+    assert p.share == 0.0 and abs(p.optimal - 0.1) < 0.05 and p.variance_cut < pilot.MIN_VARIANCE_CUT
+    # Anti-correlation: none either.
+    assert pilot.choose_share(*pilot_data(n, -0.6, 0.5)).share == 0.0
+    # Pixels that are not finite are left out; no variance: no share.
+    F, T, M = pilot_data(n, 0.6, 0.5)
+    F[0, :10] = np.nan
+    p = pilot.choose_share(F, T, M)
+    assert p.pixels == n - 10 and abs(p.optimal - 0.6) < 0.02
+    assert pilot.choose_share(np.ones((2, 8)), np.zeros((2, 8)), np.ones(8)) == pilot.SkySharePilot(0.0, 0.0, 0.0, 8)
+
+
+def test_pilot_takes_the_whole_sky_over_open_cloth_and_none_under_a_roof():
+    """Open cloth sees the sky in every sampled direction: c* near 1 and most of the pixel
+    variance gone. Under a black roof hiding all but the horizon, the sampled weight hardly
+    ties in with what the path brings back: no share, no table read."""
+    from mscloth.integrators import sky_share_pilot as pilot
+
+    scene = cloth_under_sky(ROUGH, 40.0, None)
+    open_sky = scene.integrator().pilot_sky_share(scene, 4)
+    assert 0.8 <= open_sky.share <= 1.0 and open_sky.variance_cut > 0.5, open_sky
+    scene = cloth_under_sky(ROUGH, 40.0, None, roof=True)
+    roofed = scene.integrator().pilot_sky_share(scene, 4)
+    assert roofed.share == 0.0 and roofed.variance_cut < pilot.MIN_VARIANCE_CUT, roofed
+
+
+def test_auto_share_renders_as_the_pilots_share_given(monkeypatch):
+    """``sky_share`` auto on a render of SKY_TABLE_LANES samples or more renders what the
+    pilot's share, given explicitly, renders (to float rounding). Below that count, what
+    share 0 renders."""
+    from mscloth.integrators import clothpath, sky_share_pilot as pilot
+
+    monkeypatch.setattr(clothpath, "SKY_TABLE_LANES", 16 * 16 * 4)
+    scene = cloth_under_sky(ROUGH, 40.0, None)
+    share = scene.integrator().pilot_sky_share(scene, 4).share
+    assert share > 0.0
+    auto = np.asarray(mi.render(scene, spp=4, seed=11))
+    assert pilot.kept_share(pilot.scene_key(scene, 4)).share == share
+    # (The same scene object, its integrator's share set: a scene loaded again may differ
+    # in the last bits of its tables.)
+    integrator = scene.integrator()
+    integrator.sky_share = share
+    # (To float rounding: a scene rendered twice may differ in the last bit.)
+    np.testing.assert_allclose(auto, np.asarray(mi.render(scene, spp=4, seed=11)), rtol=1e-5, atol=1e-6)
+    integrator.sky_share = None
+    small = np.asarray(mi.render(scene, spp=2, seed=11))
+    integrator.sky_share = 0.0
+    np.testing.assert_allclose(small, np.asarray(mi.render(scene, spp=2, seed=11)), rtol=1e-5, atol=1e-6)
+    # A share off by 1% would not pass.
+    integrator.sky_share = share * 0.99
+    assert not np.allclose(auto, np.asarray(mi.render(scene, spp=4, seed=11)), rtol=1e-5, atol=1e-6)
+
+
+def test_a_crop_of_the_frame_gets_the_frames_share():
+    """A crop renders part of the same frame: same key, so the same share, and the same
+    decision whether to take one (make bench times its regions as crops); another sample
+    count or another scene: another key."""
+    from mscloth.integrators import sky_share_pilot as pilot
+
+    full = cloth_under_sky(ROUGH, 40.0, None)
+    crop = cloth_under_sky(ROUGH, 40.0, None, crop=(4, 2, 8, 5))
+    assert pilot.scene_key(crop, 4) == pilot.scene_key(full, 4)
+    # ... and decides as its frame does whether the render is large enough for a table.
+    from mscloth.integrators import clothpath
+    assert clothpath.frame_lanes(crop, 8 * 5 * 4) == clothpath.frame_lanes(full, 16 * 16 * 4) == 16 * 16 * 4
+    assert pilot.scene_key(full, 16) != pilot.scene_key(full, 4)
+    assert pilot.scene_key(cloth_under_sky(ROUGH, 40.0, None, roof=True), 4) != pilot.scene_key(full, 4)

@@ -19,6 +19,7 @@ from ..pixel_filter import quadratic_bspline_quantile
 from . import bsdf_contract as contract
 from . import footprint as fp
 from . import gap_shadows
+from . import sky_share_pilot
 
 DOCSTRING = r"""
 Path tracer with pixel footprints (``clothpath``)
@@ -116,7 +117,7 @@ Footprint convention: the footprint of a shading point is the UV parallelogram c
        BSDF needs pixel samples instead.
    * - sky_share
      - float
-     - 0.5 from 2^19 samples per pass, else 0
+     - auto: a pilot's, from 2^19 samples per pass, else 0
      - The share c of a uniform environment's light (``constant``, left to BSDF
        sampling by ``emitter_sampling`` ``all``) that camera rays' first hits on BSDFs
        that know their sample weight's expectation (multi-scale ``cloth``: a table of
@@ -124,8 +125,11 @@ Footprint convention: the footprint of a shading point is the UV parallelogram c
        cloth) take whole: c L A(wi), Monte Carlo carrying only what the sampled
        directions bring beyond c L. 0: off; 1 suits open cloth under the sky, less cloth
        whose directions see other surfaces (docs/performance-log.md L60). Not given:
-       0.5, but off for renders of fewer samples per pass (pixels x spp), which the
-       table's build would outlast.
+       the share that leaves the least noise in the scene, measured by a pilot render
+       (two rays through each of 16384 pixels, well under a second once traced), or 0
+       where it would cut the variance by less than the table's reads cost
+       (:mod:`mscloth.integrators.sky_share_pilot`); off for renders of fewer samples
+       per pass (pixels x spp), which the table's build would outlast.
    * - gap_shadows
      - boolean
      - true
@@ -216,6 +220,7 @@ class PathState:
     cone_width: mi.Float           #: ray-cone width at the previous vertex
     cone_spread: mi.Float          #: ray-cone spread angle
     aovs: tuple                    #: the ``AOV_NAMES`` values (recorded at the first hit)
+    sky_term: tuple                #: the pilot's (:mod:`.sky_share_pilot`): the control variate's term at c = 1
     delta_chain: mi.Bool           #: only delta bounces so far (the footprint is kept)
     gap_run: mi.UInt32             #: gap crossings since prev_si
 
@@ -280,18 +285,32 @@ SKY_CONTROL_VARIATE_SHARE = 0.0
 #: sample costs one more BSDF sample, so it measures, it does not pay).
 SKY_ALBEDO_SAMPLES = 0
 
-#: The default of ``sky_share``: the share c of a uniform sky's light at a camera ray's
-#: first hit that a control variate takes whole: c L_env A(wi), A the mean albedo of what the BSDF samples its direction
-#: from (``sky_albedo`` of :mod:`.bsdf_contract`: multi-scale ``cloth``'s table), with c
-#: L_env times the weight of every sampled direction taken off, so that
-#: Monte Carlo carries only what those directions bring beyond c L_env
-#: (docs/performance-log.md L59, L60). 0: off. Only where the sky is left to BSDF sampling
-#: (``emitter_sampling`` ``all``) and at first hits whose BSDF gives A.
-SKY_TABLE_SHARE = 0.5
-#: ... for renders of at least this many samples per pass (pixels x spp, 320 x 180 at 16
-#: spp and more): a table's build (about 7 s per cloth) outlasts smaller ones (the test
-#: suite took 17 min instead of 6 with 2^17).
+#: ``sky_share``: the share c of a uniform sky's light at a camera ray's first hit that a
+#: control variate takes whole: c L_env A(wi), A the mean albedo of what the BSDF samples its
+#: direction from (``sky_albedo`` of :mod:`.bsdf_contract`: multi-scale ``cloth``'s table),
+#: with c L_env times the weight of every sampled direction taken off, so that Monte Carlo
+#: carries only what those directions bring beyond c L_env (docs/performance-log.md L59-L61).
+#: Only where the sky is left to BSDF sampling (``emitter_sampling`` ``all``) and at first
+#: hits whose BSDF gives A. Its default (auto) for large renders: with this None, the share a
+#: pilot render measures for the scene (:mod:`.sky_share_pilot`); a number (experiments):
+#: that share in every scene.
+SKY_TABLE_SHARE = None
+#: ... for renders of at least this many samples per pass (pixels x spp of the whole frame,
+#: a crop counting as its frame: 320 x 180 at 16 spp and more): a table's build (about 7 s
+#: per cloth) outlasts smaller ones (the test suite took 17 min instead of 6 with 2^17).
 SKY_TABLE_LANES = 1 << 19
+
+
+def frame_lanes(scene, lanes: int) -> float:
+    """Samples per pass of the whole frame whose crop (``scene``'s first sensor's film) a
+    pass of ``lanes`` samples renders: a crop of a frame decides as the frame does (``make
+    bench`` times its regions as crops of the frames whose noise it measures)."""
+    sensors = scene.sensors()
+    if not sensors:
+        return float(lanes)
+    film = sensors[0].film()
+    (w, h), (cw, ch) = film.size(), film.crop_size()
+    return lanes * (w * h) / max(cw * ch, 1)
 
 
 def sky_albedo_bsdfs(scene) -> list:
@@ -416,7 +435,7 @@ def make_clothpath_class():
             self.footprint_aovs = _read_flag(props, "footprint_aovs")
             self.scattered_footprints = _read_flag(props, "scattered_footprints")
             self.gap_shadows = _read_flag(props, "gap_shadows")
-            # None: SKY_TABLE_SHARE for renders of SKY_TABLE_LANES samples per pass or more.
+            # None: auto, for renders of SKY_TABLE_LANES samples per pass or more the pilot's share.
             self.sky_share = props.get("sky_share", None)
             if isinstance(self.sky_share, int) and not isinstance(self.sky_share, bool):
                 self.sky_share = float(self.sky_share)
@@ -451,8 +470,53 @@ def make_clothpath_class():
                                                  ray_d.o_y, ray_d.d_y)
             else:
                 width0, spread0 = mi.Float(0.0), mi.Float(0.0)
+            share = self.sky_share
+            if share is None:  # auto
+                share = 0.0
+                if frame_lanes(scene, dr.width(ray_d.o)) >= SKY_TABLE_LANES and self.sky_table_possible(scene):
+                    share = SKY_TABLE_SHARE
+                    if share is None:
+                        share = self.pilot_sky_share(scene, sampler.sample_count()).share
             return self._trace(scene, sampler, ray_d, has_diff, mi.Float(width0),
-                               mi.Float(spread0), mi.Bool(active))
+                               mi.Float(spread0), mi.Bool(active), share)[:3]
+
+        def sky_table_possible(self, scene) -> bool:
+            """Whether the sky's control variate can run in ``scene``: a uniform sky left to
+            BSDF sampling (``emitter_sampling`` ``all``), emitters not hidden, an RGB JIT
+            variant, and a BSDF that gives A (:func:`sky_albedo_bsdfs`, whose tables this
+            builds). Not with the K-sample experiment, which would take the share twice."""
+            return bool(not SKY_CONTROL_VARIATE_SHARE and self.emitter_sampling == "all"
+                        and _is_uniform(scene.environment()) and dr.is_jit_v(mi.Float) and mi.is_rgb
+                        and not mi.is_polarized and not self.hide_emitters and sky_albedo_bsdfs(scene))
+
+        def pilot_sky_share(self, scene, spp: int) -> sky_share_pilot.SkySharePilot:
+            """``sky_share`` auto's share for ``scene`` rendered at ``spp`` samples per pixel
+            (:mod:`.sky_share_pilot`): PILOT_PIXELS pixels of its first sensor rendered
+            three times with the control variate's term recorded at c = 1 instead of
+            added. Kept per scene description and spp (:func:`.sky_share_pilot.scene_key`):
+            a scene loaded again measures nothing; a change its description does not show
+            keeps the share, which moves the noise, not the mean."""
+            key = sky_share_pilot.scene_key(scene, spp)
+            pilot = sky_share_pilot.kept_share(key)
+            if pilot is not None:
+                return pilot
+            sensor = scene.sensors()[0]
+            x, y = sky_share_pilot.pilot_pixels(sensor)
+            F, T = [], []
+            for k in range(3):
+                rays, sampler = sky_share_pilot.camera_rays(sensor, x, y, spp, sky_share_pilot.PILOT_SEED + k)
+                width0, spread0 = fp.camera_cone(rays.o, rays.d, rays.o_x, rays.d_x, rays.o_y, rays.d_y)
+                with dr.suspend_grad():
+                    result, valid, _, term = self._trace(scene, sampler, rays, True, mi.Float(width0),
+                                                         mi.Float(spread0), mi.Bool(True), 0.0, record_sky=True)
+                    f, t = mi.luminance(dr.select(valid, result, 0.0)), mi.luminance(term)
+                    dr.eval(f, t)
+                F.append(np.array(f, dtype=np.float64).reshape(len(x), spp).mean(axis=1))
+                T.append(np.array(t, dtype=np.float64).reshape(len(x), spp).mean(axis=1))
+            pilot = sky_share_pilot.choose_share(F[:2], T[:2], F[2])
+            mi.Log(mi.LogLevel.Info, f"clothpath: sky_share auto = {pilot.share:.2f} (pilot: optimal "
+                   f"{pilot.optimal:.2f}, relative variance cut {pilot.variance_cut:.0%})")
+            return sky_share_pilot.keep_share(key, pilot)
 
         @staticmethod
         def _visible(scene, si, ds, em_weight, active, gaps, cone_width, cone_spread, max_crossings):
@@ -477,7 +541,10 @@ def make_clothpath_class():
                     active &= logical_not(scene.ray_test(si.spawn_ray_to(ds.p), active))
             return ds, em_weight, active, si.to_local(ds.d)
 
-        def _trace(self, scene, sampler, ray_d, has_diff, width0, spread0, active):
+        def _trace(self, scene, sampler, ray_d, has_diff, width0, spread0, active, sky_share, record_sky=False):
+            """(radiance, valid, AOVs, the control variate's term or None) of the paths of
+            camera rays ``ray_d`` (whole-pixel differentials), the sky's control variate
+            taking ``sky_share``; ``record_sky``: not added but returned, at c = 1 (the pilot)."""
             jit = dr.is_jit_v(mi.Float)
             bsdf_ctx = mi.BSDFContext()
             max_depth = self.max_depth
@@ -525,13 +592,10 @@ def make_clothpath_class():
 
             sky_table_radiance = None
             # (Not with the experiment's residual, which would take the share twice.)
-            sky_share = self.sky_share
-            if sky_share is None:
-                sky_share = SKY_TABLE_SHARE if dr.width(ray_d.o) >= SKY_TABLE_LANES else 0.0
-            if sky_share and not SKY_CONTROL_VARIATE_SHARE and env_by_bsdf and jit and mi.is_rgb \
-                    and not mi.is_polarized and not hide_emitters and sky_albedo_bsdfs(scene):
-                sky_table_radiance = mi.Spectrum(*(sky_share * v
+            if (sky_share or record_sky) and self.sky_table_possible(scene):
+                sky_table_radiance = mi.Spectrum(*((1.0 if record_sky else sky_share) * v
                                                    for v in uniform_radiance(scene.environment())))
+            record_sky = record_sky and sky_table_radiance is not None
 
             def shade_with_sky(bsdf, at_first, *args):
                 """``shade_n`` with (A, known) at the lanes ``at_first`` (a Float)."""
@@ -719,8 +783,13 @@ def make_clothpath_class():
                     at_first = first & active_next
                     sampled_weight = si.to_world_mueller(bsdf_weight, -bsdf_sample.wo, si.wi)
                     taken = albedo - dr.select(bsdf_sample.pdf > 0.0, sampled_weight, 0.0)
-                    s.result = dr.select(at_first & (known > 0.0),
-                                         spec_fma(s.throughput, taken * sky_table_radiance, s.result), s.result)
+                    into = s.sky_term[0] if record_sky else s.result
+                    into = dr.select(at_first & (known > 0.0),
+                                     spec_fma(s.throughput, taken * sky_table_radiance, into), into)
+                    if record_sky:
+                        s.sky_term = (into,)
+                    else:
+                        s.result = into
 
                 if sky_residual is not None and SKY_ALBEDO_SAMPLES:
                     at_first = first & active_next
@@ -802,7 +871,8 @@ def make_clothpath_class():
                 # Only when recorded: a state variable the body leaves as it is (a literal)
                 # made Dr.Jit trace the whole loop body twice (performance log L51).
                 aovs=tuple(mi.Float(0.0) for _ in AOV_NAMES) if footprint_aovs else (),
-                delta_chain=mi.Bool(True), gap_run=mi.UInt32(0))
+                delta_chain=mi.Bool(True), gap_run=mi.UInt32(0),
+                sky_term=(mi.Spectrum(0.0),) if record_sky else ())
             # A symbolic loop in JIT variants; in scalar ones, where ``active`` is a Python
             # bool, dr.while_loop runs the body as a Python while loop.
             # Without loop optimisation: it drops loop-invariant state (the sampler's seeds)
@@ -812,7 +882,7 @@ def make_clothpath_class():
                 _, state = dr.while_loop((sampler, state), lambda sampler, s: s.active, body,
                                          label="clothpath")
             return (dr.select(state.valid_ray, state.result, 0.0), state.valid_ray,
-                    list(state.aovs) if footprint_aovs else [])
+                    list(state.aovs) if footprint_aovs else [], state.sky_term[0] if record_sky else None)
 
     ClothPathIntegrator.__name__ = "ClothPathIntegrator"
     ClothPathIntegrator.__qualname__ = "ClothPathIntegrator"

@@ -1,0 +1,131 @@
+"""How much of a uniform sky ``clothpath``'s control variate should take whole in a scene:
+the share c of ``sky_share`` auto, from a short pilot render.
+
+The control variate adds c times t = L_env (A - w) at a camera ray's first hit (A: the
+BSDF's table albedo, w: its sampled direction's weight). The share that leaves a pixel the
+least noise is c* = -Cov(F, T) / Var(T), F the pixel's estimate without it and T the
+mean of t over the pixel's samples: 1 where every sampled direction sees the sky (an open
+plane), less where a floor or a fold hides part of it (the floor's light varies with the
+direction, not as the sky's). What c* takes off a pixel's variance, 1 - Var(F + c* T) /
+Var(F), is weighed against what reading the table costs (a frame 16-37% longer,
+performance log L60): below ``MIN_VARIANCE_CUT`` (a sun that outshines the sky, cloth whose
+sampled weights barely vary) the share is 0 and no table is read.
+
+The pilot renders ``PILOT_PIXELS`` random pixels of the frame with the render's own sampler
+and sample count, three times with independent seeds: the noise that counts is the pixel
+estimate's, stratification included, not how the image varies across the frame, so the
+statistics come from two renders' differences (E[(x1 - x2)(y1 - y2)] / 2 = Cov(x, y)); each
+pixel weighs by the inverse square of its value in the third (relative error, as ``make
+bench`` measures it, without tying the weight to the noise it weighs)."""
+from __future__ import annotations
+
+import re
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+#: Pixels of the pilot, each rendered three times at the render's sample count: its cuts vary
+#: by +-0.01-0.015 between seeds on the built-in scenes (+-0.02-0.03 with 4096; L61).
+PILOT_PIXELS = 8192
+#: Its seeds (a scene gets the same share on every render).
+PILOT_SEED = 7_919
+#: The least cut in a pixel's relative variance for which the table is read. Its reads make
+#: a frame 16-37% longer, so it pays from a cut of p / (1 + p) = 0.14-0.27 of the noise
+#: make bench measures; the pilot's cuts run lower than make bench's (plane at c = 1/2:
+#: 0.61 against 0.71). On the built-in scenes (L61): sphere 0.07 and satin-plane 0.03 stay
+#: off; drape 0.17, denim 0.18, swatch 0.18, satin 0.24 and plane 0.82 take their share.
+MIN_VARIANCE_CUT = 0.12
+#: Pixels darker than this fraction of the pilot's mean weigh as if this bright (a black
+#: pixel's relative error is not defined).
+DARK_FLOOR = 0.05
+
+
+@dataclass(frozen=True)
+class SkySharePilot:
+    """What the pilot measured and the share it chose."""
+
+    share: float          #: the share used: ``optimal`` clipped to [0, 1], or 0
+    optimal: float        #: c* = -Cov(F, T) / Var(T), relative, within a pixel (0 without variance)
+    variance_cut: float   #: 1 - Var(F + c T) / Var(F) at c = ``optimal`` clipped to [0, 1]
+    pixels: int           #: pixels that went into it
+
+
+#: Shares measured in this process, by :func:`scene_key` (``make bench`` loads a scene for
+#: each measurement): the last ``KEPT_SHARES``.
+_SHARES: "OrderedDict[tuple, SkySharePilot]" = OrderedDict()
+KEPT_SHARES = 16
+
+
+def scene_key(scene, spp: int) -> tuple:
+    """What a share is kept by: the scene's description (its ``to_string``: shapes, BSDFs,
+    emitters, sensor, integrator) without the film's crop (and the sensor's resolution,
+    which follows it) or the sampler's state, and ``spp``. A crop renders part
+    of the same frame and gets the frame's share (the pilot's pixels span the whole film):
+    ``make bench``'s regions are timed as crops of the frame whose noise they measure."""
+    text = re.sub(r"(crop_size|crop_offset|resolution) = \[[^\]]*\],?", "", str(scene))
+    # (The sampler's state, which a render changes; its count is ``spp``.)
+    text = re.sub(r"(base_seed|sample_count|samples_per_wavefront|wavefront_size) = [^\n,]*,?", "", text)
+    return text, int(spp)
+
+
+def kept_share(key: tuple) -> SkySharePilot | None:
+    """The share measured for ``key`` in this process, if kept."""
+    return _SHARES.get(key)
+
+
+def keep_share(key: tuple, pilot: SkySharePilot) -> SkySharePilot:
+    _SHARES[key] = pilot
+    while len(_SHARES) > KEPT_SHARES:
+        _SHARES.popitem(last=False)
+    return pilot
+
+
+def pilot_pixels(sensor) -> tuple[np.ndarray, np.ndarray]:
+    """(x, y): PILOT_PIXELS random pixels (seed PILOT_SEED) of ``sensor``'s whole film (not
+    only its crop)."""
+    w, h = sensor.film().size()
+    rng = np.random.default_rng(PILOT_SEED)
+    return rng.integers(0, w, PILOT_PIXELS), rng.integers(0, h, PILOT_PIXELS)
+
+
+def camera_rays(sensor, x: np.ndarray, y: np.ndarray, spp: int, seed: int):
+    """(rays, sampler): ``spp`` camera rays (whole-pixel differentials) through each pixel
+    (``x``, ``y``), pixel after pixel, placed by a copy of ``sensor``'s sampler seeded with
+    ``seed`` (its stratification over each pixel's samples, as in a render), and the
+    sampler their paths go on drawing from."""
+    film = sensor.film()
+    sampler = sensor.sampler().clone()
+    sampler.set_sample_count(spp)
+    sampler.seed(seed, len(x) * spp)
+    index = dr.arange(mi.UInt32, len(x) * spp) // spp
+    pixel = mi.Point2f(dr.gather(mi.Float, mi.Float(np.asarray(x, np.float32)), index),
+                       dr.gather(mi.Float, mi.Float(np.asarray(y, np.float32)), index))
+    # The sensor's sample positions span the film's crop (pixels outside it lie beyond [0, 1]).
+    offset, size = mi.ScalarVector2f(film.crop_offset()), mi.ScalarVector2f(film.crop_size())
+    position = (pixel + sampler.next_2d() - offset) / size
+    rays, _ = sensor.sample_ray_differential(mi.Float(0.0), sampler.next_1d(), position, sampler.next_2d())
+    return rays, sampler
+
+
+def choose_share(F, T, M, min_cut: float = MIN_VARIANCE_CUT) -> SkySharePilot:
+    """The share from the pilot's pixel estimates (luminance): ``F`` (2, pixels) two
+    independent renders without the control variate, ``T`` (2, pixels) its mean term at
+    c = 1 in the same renders, ``M`` (pixels) a third render, which weighs each pixel by
+    1 / M^2. Pixels that are not finite in any of them are left out."""
+    F, T, M = (np.asarray(a, dtype=np.float64) for a in (F, T, M))
+    df, dt = F[0] - F[1], T[0] - T[1]
+    ok = np.isfinite(df) & np.isfinite(dt) & np.isfinite(M)
+    df, dt, M = df[ok], dt[ok], M[ok]
+    if not df.size:
+        return SkySharePilot(0.0, 0.0, 0.0, 0)
+    weight = 1.0 / np.maximum(M, DARK_FLOOR * max(float(np.mean(np.abs(M))), 1e-30)) ** 2
+    var_f, var_t, cov = (float(np.sum(weight * a * b)) for a, b in ((df, df), (dt, dt), (df, dt)))
+    if not (var_t > 0.0 and var_f > 0.0):
+        return SkySharePilot(0.0, 0.0, 0.0, int(df.size))
+    optimal = -cov / var_t
+    share = float(np.clip(optimal, 0.0, 1.0))
+    cut = 1.0 - (var_f + 2.0 * share * cov + share * share * var_t) / var_f
+    return SkySharePilot(share if cut >= min_cut else 0.0, float(optimal), float(cut), int(df.size))
