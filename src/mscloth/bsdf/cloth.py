@@ -288,9 +288,14 @@ def make_cloth_class():
                 dr.eval(weight, kept)
                 return np.asarray(weight).reshape(3, -1), np.asarray(kept)
 
+            from ..precompute._util import Progress
+
             h, w = self.maps.resolution
             fd = self.footprint_data
-            shading.sky_table = keep_table(key, build_sky_albedo_table(sample, h, w, uv, fd.dv))
+            # (A few seconds per cloth, on the first render that wants it: shown as the tables' builds are.)
+            prog = Progress(label=self.label)
+            shading.sky_table = keep_table(key, build_sky_albedo_table(
+                sample, h, w, uv, fd.dv, progress=lambda done, total: prog("sky albedo table", done, total, "directions")))
             mi.Log(mi.LogLevel.Info, f"cloth [{self.label}]: sky albedo table {shading.sky_table.nbytes / 2**20:.1f} "
                                      f"MiB in {shading.sky_table.seconds:.1f} s")
             return True
