@@ -126,7 +126,7 @@ Footprint convention: the footprint of a shading point is the UV parallelogram c
        directions bring beyond c L. 0: off; 1 suits open cloth under the sky, less cloth
        whose directions see other surfaces (docs/performance-log.md L60). Not given:
        the share that leaves the least noise in the scene, measured by a pilot render
-       (two rays through each of 16384 pixels, well under a second once traced), or 0
+       (8192 pixels of the frame, three times at the render's sample count), or 0
        where it would cut the variance by less than the table's reads cost
        (:mod:`mscloth.integrators.sky_share_pilot`); off for renders of fewer samples
        per pass (pixels x spp), which the table's build would outlast.

@@ -35,8 +35,8 @@ PILOT_SEED = 7_919
 #: The least cut in a pixel's relative variance for which the table is read. Its reads make
 #: a frame 16-37% longer, so it pays from a cut of p / (1 + p) = 0.14-0.27 of the noise
 #: make bench measures; the pilot's cuts run lower than make bench's (plane at c = 1/2:
-#: 0.61 against 0.71). On the built-in scenes (L61): sphere 0.07 and satin-plane 0.03 stay
-#: off; drape 0.17, denim 0.18, swatch 0.18, satin 0.24 and plane 0.82 take their share.
+#: 0.61 against 0.71). On the built-in scenes at 16 spp (L61): sphere 0.08 and satin-plane
+#: 0.04 stay off; drape 0.13, swatch 0.16, denim 0.18, satin 0.25 and plane 0.82 take their share.
 MIN_VARIANCE_CUT = 0.12
 #: Pixels darker than this fraction of the pilot's mean weigh as if this bright (a black
 #: pixel's relative error is not defined).
