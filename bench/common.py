@@ -61,15 +61,17 @@ def attribute_owner(name: str):
     (its tuning constants, e.g. MAX_PROBES, RESIDUAL_GRID, and ``shading_hash``) if it has
     one, else the lobe samplers' (FOLD_FLAKES), else the shading's (LOOP_DIRECTIONS), else
     the uploaded tables' (CHANNEL_MAJOR), else the ``clothpath`` module's
-    (DEFAULT_UV_FILTER), else the ``cloth`` BSDF class of the active variant."""
+    (DEFAULT_UV_FILTER), else the sky albedo table's module (SHAPE_STEPS), else the
+    ``cloth`` BSDF class of the active variant."""
     from mscloth.bsdf.cloth_shading import ClothShading
     from mscloth.bsdf.footprint_data import FootprintData
     from mscloth.bsdf.footprint_estimator import FootprintEstimator
     from mscloth.bsdf.lobe_mixture import LobeSamplers
+    from mscloth.bsdf import sky_albedo
     from mscloth.bsdf.registry import cloth_class
     from mscloth.integrators import clothpath
 
-    for owner in (FootprintEstimator, LobeSamplers, ClothShading, FootprintData, clothpath):
+    for owner in (FootprintEstimator, LobeSamplers, ClothShading, FootprintData, clothpath, sky_albedo):
         if hasattr(owner, name):
             return owner
     return cloth_class()

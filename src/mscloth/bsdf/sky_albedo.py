@@ -8,13 +8,16 @@ that mean and leaves Monte Carlo only the rest (docs/performance-log.md L59, L60
 footprint's A is the mean of its texels' A, one SAT read per bin and corner, as the
 BSDF's other footprint means.
 
-Held at the nodes of :func:`node_coordinates`, bilinear between them: the centres of the
-visibility tables' direction bins, where the fibre-level BSDF's V(wi), bilinear over the
-same bins, has its kinks (read 15 degrees apart, A was off by up to 17%; performance log
-L59), ``NODES_PER_BIN - 1`` between each two, and six more rows each side towards the
-horizon, where the fuzz and the Fresnel
+Held at the nodes of :func:`node_coordinates`: the centres of the visibility tables'
+direction bins, where the fibre-level BSDF's V(wi), bilinear over the same bins, has its
+kinks (read 15 degrees apart, A was off by up to 17%; performance log L59),
+``NODES_PER_BIN - 1`` between each two (``OUTER_BIN_NODES - 1`` between the outermost
+two), and six more rows each side towards the horizon, where the fuzz and the Fresnel
 factor raise A steeply (beyond the outermost centres, at 76 degrees for 8 x 8 bins, A
-rose from 0.11 to 0.22 on the plane's twill). Built by Monte Carlo from the
+rose from 0.11 to 0.22 on the plane's twill). Read bilinearly between the nodes, times
+:func:`shape_ratio`: how the tile's mean A, followed by a cubic, bends between them (read
+bilinearly alone, 0.5-1.3% high at 84-89 degrees, where the plane's far pixels see it;
+performance log L62). Built by Monte Carlo from the
 fibre-level BSDF's own samples (stratified per cell, one random shift per cell kept for
 every direction, so that A is smooth in wi and the cells' errors are independent and
 average out over a footprint).
@@ -30,6 +33,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..jit_arrays import flat_array, gather_block
 from ..precompute.direction_bins import square_to_hemisphere
 from ..precompute.summed_area import build_sat
 from .sat_queries import RectUnion, ResidualSATs, round_box
@@ -41,7 +45,8 @@ CHANNELS_PER_BIN = 4
 SAMPLES = 16
 
 #: The most a table may take: larger tiles get cells of several texels (:func:`cell_block`).
-MAX_MIB = 100.0
+#: (A 64^2 tile, the plane's, has cells of one texel within it: 124 MiB.)
+MAX_MIB = 128.0
 
 #: The nodes beyond the outermost bin centres, as insets from the square's edge (the
 #: horizon) in bins: where the fuzz and the Fresnel factor raise A steeply, at about 80,
@@ -52,17 +57,30 @@ OUTER_INSETS = (0.375, 0.25, 0.178, 0.105, 0.052, 0.02)
 #: between neighbouring centres.
 NODES_PER_BIN = 2
 
+#: Nodes per bin between the two outermost centres each side (52-76 degrees for 8 x 8
+#: bins), where A bends most between centres (a dip near 70 degrees on the plane's twill:
+#: read linearly across those 12 degrees, 4% high; performance log L62).
+OUTER_BIN_NODES = 4
+
+#: Points per node interval along each axis at which :func:`shape_ratio` is held (read
+#: bilinearly between them); 0 reads A bilinearly between the nodes, uncorrected.
+SHAPE_STEPS = 8
+
 
 def nodes_per_axis(n: int) -> int:
-    return NODES_PER_BIN * (n - 1) + 1 + 2 * len(OUTER_INSETS)
+    return len(node_coordinates(n))
 
 
 def node_coordinates(n: int) -> np.ndarray:
     """The node coordinates along each axis of the hemisphere's square (Mitsuba's
     ``uniform_hemisphere_to_square``; its edge is the horizon): the bin centres (k + 1/2)
-    / n of an n x n grid and ``NODES_PER_BIN - 1`` evenly between each two, then the
+    / n of an n x n grid and ``NODES_PER_BIN - 1`` evenly between each two
+    (``OUTER_BIN_NODES - 1`` between the two outermost each side), then the
     ``OUTER_INSETS`` each side."""
     inner = (0.5 + np.arange(NODES_PER_BIN * (n - 1) + 1) / NODES_PER_BIN) / n
+    if n > 1:
+        extra = (0.5 + np.arange(1, OUTER_BIN_NODES) / OUTER_BIN_NODES) / n
+        inner = np.unique(np.round(np.concatenate([inner, extra, 1.0 - extra]), 12))
     low = np.array(sorted(OUTER_INSETS)) / n
     return np.concatenate([low, inner, 1.0 - low[::-1]])
 
@@ -78,27 +96,92 @@ def node_interval(p, n: int):
     """(k, f): the node interval [u_k, u_k+1] of square coordinate ``p`` and the fraction
     across it (clamped to [0, 1] beyond the outermost nodes)."""
     c = node_coordinates(n)
-    m, s, outer = len(c), NODES_PER_BIN, len(OUTER_INSETS)
-    k = dr.clip(dr.floor((p * n - 0.5) * s) + outer, outer, m - outer - 2)
-    for j in range(outer - 1, -1, -1):  # below the first centre
-        k = dr.select(p < c[j + 1], float(j), k)
-    for j in range(m - outer - 1, m - 1):  # beyond the last one
-        k = dr.select(p >= c[j], float(j), k)
+    k = mi.Float(0.0)
+    for u in c[1:-1]:  # (a few dozen compares: cheaper than a search's dependent reads)
+        k += dr.select(p >= float(u), 1.0, 0.0)
     nodes = mi.Float(c.astype(np.float32))  # (evaluated: one array, not literals)
     u0 = dr.gather(mi.Float, nodes, mi.UInt32(k))
     u1 = dr.gather(mi.Float, nodes, mi.UInt32(k) + 1)
     return mi.UInt32(k), dr.clip((p - u0) / (u1 - u0), 0.0, 1.0)
 
 
-def node_weights(w, n: int):
-    """The four nodes around the upper-hemisphere direction ``w`` (flat indices) and
-    their bilinear weights."""
+def node_cell(w, n: int):
+    """(ka, fx, kb, fy, p): the node intervals along x and y around the upper-hemisphere
+    direction ``w``, the fractions across them (:func:`node_interval`) and its square
+    coordinates p."""
     p = mi.warp.uniform_hemisphere_to_square(w)
-    ka, fx = node_interval(p.x, n)
-    kb, fy = node_interval(p.y, n)
+    return node_interval(p.x, n) + node_interval(p.y, n) + (p,)
+
+
+def node_weights(w, n: int, cell=None):
+    """The four nodes around the upper-hemisphere direction ``w`` (flat indices) and
+    their bilinear weights (``cell``: its :func:`node_cell`, if known)."""
+    ka, fx, kb, fy = (node_cell(w, n) if cell is None else cell)[:4]
     m = nodes_per_axis(n)
     nodes = (kb * m + ka, kb * m + ka + 1, (kb + 1) * m + ka, (kb + 1) * m + ka + 1)
     return nodes, ((1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy)
+
+
+def shape_points(n: int, steps: int) -> np.ndarray:
+    """Where :func:`shape_ratio` is held along each axis: ``steps`` evenly spaced points in
+    every interval between the nodes and between the outermost nodes and the square's
+    edges, and the edge 1."""
+    c = np.concatenate([[0.0], node_coordinates(n), [1.0]])
+    t = np.arange(steps) / steps
+    return np.append((c[:-1, None] + (c[1:] - c[:-1])[:, None] * t).ravel(), 1.0)
+
+
+def _slopes(y: np.ndarray, c: np.ndarray, kinks: np.ndarray):
+    """(left, right): the slopes of ``y`` (nodes ``c`` on its last axis) at the start and
+    the end of each node interval, by finite differences within the stretch between two
+    ``kinks`` (node indices; V(wi) is bilinear between bin centres, so A bends there)
+    that holds the interval: a kink has one slope each side."""
+    left = np.zeros(y.shape[:-1] + (len(c) - 1,))
+    right = np.zeros_like(left)
+    bounds = np.unique(np.concatenate([[0], kinks, [len(c) - 1]]))
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        g = (np.gradient(y[..., a:b + 1], c[a:b + 1], axis=-1, edge_order=2) if b - a >= 2 else
+             np.repeat((y[..., b:b + 1] - y[..., a:a + 1]) / (c[b] - c[a]), 2, axis=-1))
+        left[..., a:b] = g[..., :-1]
+        right[..., a:b] = g[..., 1:]
+    return left, right
+
+
+def _along_axis(y: np.ndarray, c: np.ndarray, kinks: np.ndarray, x: np.ndarray, axis: int):
+    """(cubic, linear): ``y``, held at the nodes ``c`` along ``axis``, at ``x``; cubic
+    Hermite with :func:`_slopes` (beyond the outermost nodes, their intervals' cubics go
+    on), and linear (beyond them, the outermost node's value, as :func:`node_interval`
+    reads it)."""
+    y = np.moveaxis(y, axis, -1)
+    left, right = _slopes(y, c, kinks)
+    k = np.clip(np.searchsorted(c, x, side="right") - 1, 0, len(c) - 2)
+    h = c[k + 1] - c[k]
+    t = (x - c[k]) / h
+    y0, y1, m0, m1 = y[..., k], y[..., k + 1], left[..., k] * h, right[..., k] * h
+    t2, t3 = t * t, t * t * t
+    cubic = (2 * t3 - 3 * t2 + 1) * y0 + (t3 - 2 * t2 + t) * m0 + (3 * t2 - 2 * t3) * y1 + (t3 - t2) * m1
+    t = np.clip(t, 0.0, 1.0)
+    linear = (1 - t) * y0 + t * y1
+    return np.moveaxis(cubic, -1, axis), np.moveaxis(linear, -1, axis)
+
+
+def shape_ratio(means: np.ndarray, n: int, steps: int) -> np.ndarray:
+    """The tile mean's A interpolated bicubically over the nodes, over its bilinear
+    interpolation, at :func:`shape_points` along each axis: (2, F, F, 3), F = (m + 1) steps
+    + 1, from ``means`` (2, m, m, 3), the tile's mean A at the nodes (side, b, a,
+    channel). 1 at the nodes; clipped to [0.8, 1.25].
+
+    Why: A is curved between nodes (the fuzz and the Fresnel factor towards the horizon; a
+    dip near 70 degrees on twill), and read linearly there it was up to 4% high on the
+    plane's twill at 70 degrees and 0.5-0.7% between the outer nodes (performance log L62);
+    the tile's mean, whose curve the cubic follows, tells each probe's read how much."""
+    c, x = node_coordinates(n), shape_points(n, steps)
+    kinks = np.nonzero(np.min(np.abs(c[:, None] - (np.arange(n) + 0.5)[None] / n), axis=1) < 1e-9)[0]
+    cubic_x, linear_x = _along_axis(means, c, kinks, x, 2)
+    cubic = _along_axis(cubic_x, c, kinks, x, 1)[0]
+    linear = _along_axis(linear_x, c, kinks, x, 1)[1]
+    ok = linear > 1e-6 * max(float(np.max(np.abs(linear))), 1e-30)
+    return np.clip(np.where(ok, cubic / np.where(ok, linear, 1.0), 1.0), 0.8, 1.25)
 
 
 @dataclass
@@ -113,6 +196,10 @@ class SkyAlbedoTable:
     sats: ResidualSATs
     dv: int
     block: int
+    #: :func:`shape_ratio` at ``steps`` points per node interval, flat (side, y, x, RGB
+    #: and a zero): each read's factor; None: none.
+    shape: mi.Float | None = None
+    steps: int = 0
     #: Sample weights per cell and direction it was built from, and seconds it took.
     samples: int = 0
     seconds: float = 0.0
@@ -120,12 +207,35 @@ class SkyAlbedoTable:
     @property
     def nbytes(self) -> int:
         s = self.sats
-        return int(s.channels * (s.H + 1) * (s.W + 1) * 4)
+        return int(s.channels * (s.H + 1) * (s.W + 1) * 4) + (0 if self.shape is None else 4 * dr.width(self.shape))
 
-    def _first_channel(self, wi_up, back):
-        bins, weights = node_weights(wi_up, self.dv)
+    def _first_channel(self, cell, back):
+        bins, weights = node_weights(None, self.dv, cell)
         side = dr.select(back, mi.UInt32(nodes_per_axis(self.dv) ** 2), mi.UInt32(0))
         return [(side + b) * CHANNELS_PER_BIN for b in bins], weights
+
+    def _shape_factor(self, cell, back):
+        """:func:`shape_ratio` at the direction of :func:`node_cell` ``cell`` on side
+        ``back``, bilinear between its points (four packet reads of a table of a few MiB)."""
+        ka, fx, kb, fy, p = cell
+        c = node_coordinates(self.dv)
+        m, s = len(c), self.steps
+        f = (m + 1) * s + 1
+
+        def position(k, frac, u):  # along one axis, in the table's points
+            inner = (mi.Float(k) + 1.0 + frac) * s
+            below = u / float(c[0]) * s
+            beyond = (m + (u - float(c[-1])) / float(1.0 - c[-1])) * s
+            pos = dr.select(u < float(c[0]), below, dr.select(u >= float(c[-1]), beyond, inner))
+            return dr.clip(pos, 0.0, float(f - 1))
+
+        x, y = position(ka, fx, p.x), position(kb, fy, p.y)
+        x0, y0 = dr.minimum(dr.floor(x), float(f - 2)), dr.minimum(dr.floor(y), float(f - 2))
+        tx, ty = x - x0, y - y0
+        row = (dr.select(back, mi.UInt32(f), mi.UInt32(0)) + mi.UInt32(y0)) * f + mi.UInt32(x0)
+        corners = [gather_block(self.shape, (row + d) * CHANNELS_PER_BIN, 4)[:3] for d in (0, 1, f, f + 1)]
+        return mi.Color3f(*((1 - ty) * ((1 - tx) * a + tx * b) + ty * ((1 - tx) * c + tx * d)
+                            for a, b, c, d in zip(*corners)))
 
     def probe_albedo(self, boxes, split, use, x, y, wi_up, back, xi_round) -> mi.Color3f:
         """The mean A over what a shading point samples its direction from, for the
@@ -146,14 +256,16 @@ class SkyAlbedoTable:
                 for box in cells[1:]]
         queries = [self.sats.query_on_grid(*box) for box in [first] + rest]
         q = queries[0] if len(queries) == 1 else RectUnion(queries, mi.Bool(split) & ~point)
-        firsts, weights = self._first_channel(wi_up, back)
+        cell = node_cell(wi_up, self.dv)
+        firsts, weights = self._first_channel(cell, back)
         total = [mi.Float(0.0) for _ in range(3)]
         for channel, w in zip(firsts, weights):
             values = self.sats.integrals(q, channel, CHANNELS_PER_BIN, aligned=True)
             for c in range(3):
                 total[c] += w * values[c]
         inv_area = dr.rcp(dr.maximum(q.area, 1e-12))
-        return mi.Color3f(*(t * inv_area for t in total))
+        albedo = mi.Color3f(*(t * inv_area for t in total))
+        return albedo if self.shape is None else albedo * self._shape_factor(cell, back)
 
 
 #: Tables built in this process, by the cloth's calibration key (the same cloth loaded
@@ -164,7 +276,7 @@ KEPT_TABLES = 4
 
 def _with_settings(key: str | None) -> str | None:
     """``key`` and this module's settings (experiments change them)."""
-    return None if key is None else f"{key}|{SAMPLES}|{MAX_MIB}|{OUTER_INSETS}|{NODES_PER_BIN}"
+    return None if key is None else f"{key}|{SAMPLES}|{MAX_MIB}|{OUTER_INSETS}|{NODES_PER_BIN}|{OUTER_BIN_NODES}|{SHAPE_STEPS}"
 
 
 def cached_table(key: str | None) -> SkyAlbedoTable | None:
@@ -255,6 +367,10 @@ def build_sky_albedo_table(sample: SampleFn, height: int, width: int, uv_scale: 
             if progress is not None:
                 progress(side * n_dirs + b + 1, 2 * n_dirs)
     sat, mean = build_sat(values.reshape(-1, rows, cols))
+    shape = None
+    if SHAPE_STEPS:
+        m = nodes_per_axis(dv)
+        ratio = shape_ratio(values[:, :3].mean(axis=(2, 3)).reshape(2, m, m, 3), dv, SHAPE_STEPS)
+        shape = flat_array(np.concatenate([ratio, np.zeros(ratio.shape[:-1] + (1,))], axis=-1).ravel())
     # Channel-minor: a corner's four channels of one bin in one packet.
-    table = SkyAlbedoTable(ResidualSATs(sat, mean), dv, block, n, time.perf_counter() - start)
-    return table
+    return SkyAlbedoTable(ResidualSATs(sat, mean), dv, block, shape, SHAPE_STEPS, n, time.perf_counter() - start)
