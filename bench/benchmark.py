@@ -686,9 +686,11 @@ def _table_lines(table_rows, sky_rows=(), share_rows=()) -> list[str]:
         "",
     ]
     if sky_rows:
+        from mscloth.bsdf.sky_albedo import nodes_per_axis
+
         lines += [
             "The sky albedo table (built when `clothpath` takes a uniform sky's share by it, once per cloth;",
-            "`mscloth.bsdf.sky_albedo`): each cell's albedo at 2 x 729 incident directions, RGB.",
+            f"`mscloth.bsdf.sky_albedo`): each cell's albedo at 2 x {nodes_per_axis(8) ** 2} incident directions, RGB.",
             "",
             "| tile | texels per cell | build seconds | memory MiB |",
             "|---|---|---|---|",
