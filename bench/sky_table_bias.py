@@ -39,27 +39,19 @@ def region_pixels(name: str, width: int, height: int, count: int, seed: int) -> 
     return out
 
 
-def recorded_terms(scene, x, y, spp: int, seed: int):
-    """(F, T, cos): per pixel, the mean luminance without the control variate, the mean of
-    its term at c = 1, and the first hit's mean |cos| of the view angle."""
+def view_cosines(scene, x, y, spp: int, seed: int) -> np.ndarray:
+    """Per pixel, the mean |cos| of the view angle at the first hit of the camera rays that
+    ``clothpath.sky_terms`` traces with the same seed."""
     import drjit as dr
     import mitsuba as mi
 
-    from mscloth.integrators import footprint as fp
     from mscloth.integrators import sky_share_pilot
 
-    integrator = scene.integrator()
-    sensor = scene.sensors()[0]
-    rays, sampler = sky_share_pilot.camera_rays(sensor, x, y, spp, seed)
-    width0, spread0 = fp.camera_cone(rays.o, rays.d, rays.o_x, rays.d_x, rays.o_y, rays.d_y)
+    rays, _ = sky_share_pilot.camera_rays(scene.sensors()[0], x, y, spp, seed)
     si = scene.ray_intersect(mi.Ray3f(rays))
     cos = dr.abs(dr.dot(si.n, rays.d))
-    with dr.suspend_grad():
-        result, valid, _, term = integrator._trace(scene, sampler, rays, True, mi.Float(width0), mi.Float(spread0),
-                                                   mi.Bool(True), 0.0, record_sky=True)
-        f, t = mi.luminance(dr.select(valid, result, 0.0)), mi.luminance(term)
-        dr.eval(f, t, cos)
-    return tuple(np.array(a, dtype=np.float64).reshape(len(x), spp).mean(axis=1) for a in (f, t, cos))
+    dr.eval(cos)
+    return np.array(cos, dtype=np.float64).reshape(len(x), spp).mean(axis=1)
 
 
 def main(argv=None) -> int:
@@ -90,13 +82,14 @@ def main(argv=None) -> int:
             print(f"| {name} | (no table) | | | |")
             continue
         for region, (x, y) in region_pixels(name, width, height, args.pixels, 11).items():
-            (f0, t0, cos), (f1, t1, _) = (recorded_terms(scene, x, y, args.spp, 101 + k) for k in range(2))
+            (f0, t0), (f1, t1) = (scene.integrator().sky_terms(scene, x, y, args.spp, 101 + k) for k in range(2))
             value = np.maximum(0.5 * (f0 + f1), 1e-6)
             b2 = t0 * t1 / value ** 2
             rel = 0.5 * (t0 + t1) / value
             print(f"| {name} | {region} | {b2.mean():.2e} ({b2.std() / np.sqrt(len(b2)):.0e}) | {rel.mean():+.2e} | "
                   f"{rel.std() / np.sqrt(len(rel)):.1e} |")
             if args.angles:
+                cos = view_cosines(scene, x, y, args.spp, 101)
                 theta = np.degrees(np.arccos(np.clip(cos, 0.0, 1.0)))
                 edges = np.percentile(theta, [0, 25, 50, 75, 100])
                 for lo, hi in zip(edges[:-1], edges[1:]):

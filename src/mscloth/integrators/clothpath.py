@@ -500,23 +500,27 @@ def make_clothpath_class():
             pilot = sky_share_pilot.kept_share(key)
             if pilot is not None:
                 return pilot
-            sensor = scene.sensors()[0]
-            x, y = sky_share_pilot.pilot_pixels(sensor)
-            F, T = [], []
-            for k in range(3):
-                rays, sampler = sky_share_pilot.camera_rays(sensor, x, y, spp, sky_share_pilot.PILOT_SEED + k)
-                width0, spread0 = fp.camera_cone(rays.o, rays.d, rays.o_x, rays.d_x, rays.o_y, rays.d_y)
-                with dr.suspend_grad():
-                    result, valid, _, term = self._trace(scene, sampler, rays, True, mi.Float(width0),
-                                                         mi.Float(spread0), mi.Bool(True), 0.0, record_sky=True)
-                    f, t = mi.luminance(dr.select(valid, result, 0.0)), mi.luminance(term)
-                    dr.eval(f, t)
-                F.append(np.array(f, dtype=np.float64).reshape(len(x), spp).mean(axis=1))
-                T.append(np.array(t, dtype=np.float64).reshape(len(x), spp).mean(axis=1))
+            x, y = sky_share_pilot.pilot_pixels(scene.sensors()[0])
+            F, T = zip(*(self.sky_terms(scene, x, y, spp, sky_share_pilot.PILOT_SEED + k) for k in range(3)))
             pilot = sky_share_pilot.choose_share(F[:2], T[:2], F[2])
             mi.Log(mi.LogLevel.Info, f"clothpath: sky_share auto = {pilot.share:.2f} (pilot: optimal "
                    f"{pilot.optimal:.2f}, relative variance cut {pilot.variance_cut:.0%})")
             return sky_share_pilot.keep_share(key, pilot)
+
+        def sky_terms(self, scene, x, y, spp: int, seed: int):
+            """(F, T): per pixel (``x``, ``y``) of ``scene``'s first sensor, rendered at
+            ``spp`` with its sampler seeded by ``seed`` (:func:`.sky_share_pilot.camera_rays`),
+            the mean luminance without the sky's control variate and the mean of its term
+            at c = 1, recorded instead of added (float64 arrays). The pilot's renders, and
+            ``bench/sky_table_bias.py``'s: T's mean is L_env times the table's error."""
+            rays, sampler = sky_share_pilot.camera_rays(scene.sensors()[0], x, y, spp, seed)
+            width0, spread0 = fp.camera_cone(rays.o, rays.d, rays.o_x, rays.d_x, rays.o_y, rays.d_y)
+            with dr.suspend_grad():
+                result, valid, _, term = self._trace(scene, sampler, rays, True, mi.Float(width0),
+                                                     mi.Float(spread0), mi.Bool(True), 0.0, record_sky=True)
+                f, t = mi.luminance(dr.select(valid, result, 0.0)), mi.luminance(term)
+                dr.eval(f, t)
+            return tuple(np.array(a, dtype=np.float64).reshape(len(x), spp).mean(axis=1) for a in (f, t))
 
         @staticmethod
         def _visible(scene, si, ds, em_weight, active, gaps, cone_width, cone_spread, max_crossings):
