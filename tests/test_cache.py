@@ -129,3 +129,15 @@ def test_scene_maps_directories_and_hyphenated_scene_references_are_entries(tmp_
     assert "removed 3 entries" in capsys.readouterr().out
     left = sorted(str(p.relative_to(root)) for p in root.rglob("*"))
     assert left == ["references", "scenes", "scenes/my-maps", "scenes/my-maps/maps.npz"]
+
+
+def test_stored_sky_shares_are_entries(tmp_path):
+    """The pilot's stored shares (``sky_shares/<key>.json``) are listed and removable;
+    other files there are not mscloth's."""
+    root = tmp_path / "cache"
+    _write(root / "sky_shares" / f"{KEY}.json", 120, age_days=3)
+    _write(root / "sky_shares" / "mine.json", 7)
+    entries = cache_entries(root)
+    assert [(e.kind, e.name, e.size) for e in entries] == [("sky shares", KEY, 120)]
+    assert remove_entries(entries) == 120
+    assert [p.name for p in (root / "sky_shares").iterdir()] == ["mine.json"]

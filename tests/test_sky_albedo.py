@@ -320,3 +320,127 @@ def test_a_crop_of_the_frame_gets_the_frames_share():
     assert clothpath.frame_lanes(crop, 8 * 5 * 4) == clothpath.frame_lanes(full, 16 * 16 * 4) == 16 * 16 * 4
     assert pilot.scene_key(full, 16) != pilot.scene_key(full, 4)
     assert pilot.scene_key(cloth_under_sky(ROUGH, 40.0, None, roof=True), 4) != pilot.scene_key(full, 4)
+
+
+def test_batched_directions_build_the_same_table(monkeypatch):
+    """The build batches directions into launches of about BATCH_LANES lanes; one
+    direction per launch (a batch of one) gives the same table to the bit, with a last
+    batch that is only partly full."""
+    import drjit as dr
+
+    bsdf = mi.load_dict(ROUGH)
+    h, w = bsdf.maps.resolution
+    ctx = mi.BSDFContext()
+
+    def sample(uv, wi, sample1, sample2):
+        si = dr.zeros(mi.SurfaceInteraction3f, dr.width(uv))
+        si.uv, si.wi = uv, wi
+        bs, weight = bsdf.sample(ctx, si, sample1, sample2)
+        return np.asarray(weight).reshape(3, -1), np.asarray(bs.pdf > 0.0)
+
+    dv = bsdf.footprint_data.dv
+    n_dirs = len(sky_albedo.node_directions(dv))
+    bx, by = sky_albedo.cell_blocks(h, w, dv, 0.5)
+    lanes = (h // by) * (w // bx) * sky_albedo.SAMPLES
+    tables = []
+    for batch in (1, n_dirs // 3 + 1):  # (three launches per side, the last one short)
+        monkeypatch.setattr(sky_albedo, "BATCH_LANES", batch * lanes)
+        tables.append(sky_albedo.build_sky_albedo_table(sample, h, w, (1.0, 1.0), dv, max_mib=0.5))
+    assert tables[0].block == tables[1].block == (bx, by)
+    np.testing.assert_array_equal(np.asarray(tables[0].sats.data), np.asarray(tables[1].sats.data))
+
+
+def test_cells_keep_square_powers_of_two_and_divide_odd_tiles():
+    """Cells are square powers of two while both sides halve (the full tables of the
+    built-in tiles); a tile with an odd side still gets cells within the budget, each
+    dividing its axis (a 51 x 64 knit: the pilot's 4 MiB table)."""
+    dv = 16
+    per_cell = 2 * sky_albedo.nodes_per_axis(dv) ** 2 * sky_albedo.CHANNELS_PER_BIN * 4
+    for size in (64, 128, 160, 512, 1024):
+        bx, by = sky_albedo.cell_blocks(size, size, dv, sky_albedo.MAX_MIB)
+        assert bx == by and bx & (bx - 1) == 0 and size % bx == 0
+        assert (size // bx + 1) ** 2 * per_cell <= sky_albedo.MAX_MIB * 2 ** 20
+        if bx > 1:  # the finest that fits
+            assert (size // (bx // 2) + 1) ** 2 * per_cell > sky_albedo.MAX_MIB * 2 ** 20
+    for h, w in ((51, 64), (51, 51), (45, 100)):
+        bx, by = sky_albedo.cell_blocks(h, w, dv, 4.0)
+        assert w % bx == 0 and h % by == 0
+        assert (h // by + 1) * (w // bx + 1) * per_cell <= 4.0 * 2 ** 20
+
+
+def test_a_pilot_that_takes_no_share_builds_no_full_table(monkeypatch):
+    """``sky_share`` auto decides on the pilot's small tables: under a roof (no share) no
+    full table is built; under the open sky (a share) the full one is, and read."""
+    from mscloth.integrators import clothpath
+    from mscloth.integrators import sky_share_pilot as pilot
+
+    monkeypatch.setattr(clothpath, "SKY_TABLE_LANES", 16 * 16 * 4)
+    built = []
+    real = sky_albedo.build_sky_albedo_table
+
+    def recording(*args, max_mib=None, **kwargs):
+        built.append(max_mib)
+        return real(*args, max_mib=max_mib, **kwargs)
+
+    monkeypatch.setattr(sky_albedo, "build_sky_albedo_table", recording)
+    # (A uv scale of its own: tables kept from other tests would not be built again.)
+    roofed = cloth_under_sky(ROUGH, 37.0, None, roof=True)
+    image = np.asarray(mi.render(roofed, spp=4, seed=3))
+    assert np.all(np.isfinite(image))
+    assert pilot.kept_share(pilot.scene_key(roofed, 4)).share == 0.0
+    assert built == [pilot.PILOT_MAX_MIB]
+    open_sky = cloth_under_sky(ROUGH, 37.0, None)
+    mi.render(open_sky, spp=4, seed=3)
+    assert pilot.kept_share(pilot.scene_key(open_sky, 4)).share > 0.0
+    # (The open scene's cloth is another BSDF with the same key: its pilot table is kept.)
+    assert built == [pilot.PILOT_MAX_MIB, None]
+    table = open_sky.shapes()[0].bsdf().shading.sky_table
+    assert table.nbytes > pilot.PILOT_MAX_MIB * 2 ** 20
+
+
+def test_shares_are_stored_on_disk_and_read_by_a_new_process(monkeypatch, tmp_path):
+    """A share measured once is stored in the table cache: a process that has not measured
+    it reads it (no pilot runs), and renders the same kernel as the process that ran the
+    pilot (the pilot runs before the render traces). A damaged file is measured again."""
+    import collections
+
+    import drjit as dr
+
+    from mscloth.integrators import clothpath
+    from mscloth.integrators import sky_share_pilot as pilot
+
+    monkeypatch.setenv("MSCLOTH_CACHE", str(tmp_path))
+    monkeypatch.setattr(clothpath, "SKY_TABLE_LANES", 16 * 16 * 4)
+    scene = cloth_under_sky(ROUGH, 40.0, None)
+    key = pilot.scene_key(scene, 4)
+
+    def render_kernels():
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
+        dr.kernel_history()
+        image = np.asarray(mi.render(scene, spp=4, seed=5))
+        history = dr.kernel_history()
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+        return image, [k["hash"] for k in history if k.get("operation_count", 0) > 1000]
+
+    monkeypatch.setattr(pilot, "_SHARES", collections.OrderedDict())
+    first, kernels = render_kernels()
+    measured = pilot.kept_share(key)
+    assert measured.share > 0.0 and pilot.share_path(key).is_file()
+    # A new process: nothing in memory; the pilot must not run.
+    monkeypatch.setattr(pilot, "_SHARES", collections.OrderedDict())
+    integrator = scene.integrator()
+
+    def no_pilot(*args, **kwargs):
+        raise AssertionError("the pilot ran although its share is stored")
+
+    monkeypatch.setattr(integrator, "measure_sky_share", no_pilot)
+    again, kernels_again = render_kernels()
+    assert pilot.kept_share(key) == measured
+    # The render's own kernel (the last) is the one the first process compiled.
+    assert kernels_again[-1:] == kernels[-1:]
+    np.testing.assert_allclose(again, first, rtol=1e-5, atol=1e-6)
+    # Damaged: a warning naming the file, then measured again.
+    pilot.share_path(key).write_text("{not json")
+    monkeypatch.setattr(pilot, "_SHARES", collections.OrderedDict())
+    with pytest.warns(RuntimeWarning, match="sky share"):
+        assert pilot.kept_share(key) is None

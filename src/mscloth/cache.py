@@ -3,8 +3,10 @@
 ``$MSCLOTH_CACHE``, else ``~/.cache/mscloth``, holds what mscloth can always make again:
 multi-scale tables (``tables-<key>.npz`` and its ``.json`` sidecar), the brute-force
 references of ``mscloth compare`` (``references/``), and the meshes and cloth maps of
-built-in scenes (``scenes/``: ``<name>-<key>.ply`` files, ``<name>-<key>/`` maps directories)
-and the cloths' lobe calibrations (``calibration/<key>.npz``, a few KiB each). Their keys change with the maps, the parameters and (references) the code,
+built-in scenes (``scenes/``: ``<name>-<key>.ply`` files, ``<name>-<key>/`` maps directories),
+the cloths' lobe calibrations (``calibration/<key>.npz``, a few KiB each) and the sky
+shares ``clothpath``'s pilot measured (``sky_shares/<key>.json``, a few hundred bytes).
+Their keys change with the maps, the parameters and (references, calibrations, shares) the code,
 so entries nothing reads any more pile up: one 512² tile's full directional SAT is 1 GiB.
 
 A load marks an entry as used (its files' modification time), so
@@ -36,6 +38,7 @@ _KINDS = (
     ("references", "references", r"[a-z0-9_][a-z0-9_-]*-\d+x\d+-\d+spp-[0-9a-f]{16}", (".npz",)),
     ("scene meshes", "scenes", r"[a-z0-9_]+-[0-9a-f]{12}", (".ply",)),
     ("calibrations", "calibration", r"[0-9a-f]{64}", (".npz",)),
+    ("sky shares", "sky_shares", r"[0-9a-f]{64}", (".json",)),
 )
 # (kind, sub-directory, entry name pattern) of entries that are directories (every file in
 # one is part of the entry): the maps of built-in scenes, written as

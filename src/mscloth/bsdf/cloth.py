@@ -132,6 +132,7 @@ def make_cloth_class():
                 self.fibre.footprint_data = FootprintData(tables, with_sats=b.multiscale, with_parallax=b.parallax)
             # The footprint BSDF; before calibration, which samples it.
             self.shading = ClothShading(self.fibre, FootprintEstimator(self.fibre, b.roughness) if b.multiscale else None)
+            self._sky_tables = {}  # sky albedo tables by size (prepare_sky_albedo)
 
         def _calibrate(self, uv_scale, uv_scale_v):
             """Lobe selection matched to the lobes' albedos, and for footprints to the
@@ -257,47 +258,48 @@ def make_cloth_class():
             (the ``footprint_texels_*`` AOVs of clothpath)."""
             return self.shading.footprint_texels(si, active)
 
-        def prepare_sky_albedo(self) -> bool:
-            """Build the sky albedo table (:mod:`.sky_albedo`) if this cloth can have one and
-            has none: multi-scale cloth whose textures are constant, without parallax (the
-            table holds each texel's own A), in JIT variants. Whether it has one."""
-            shading = self.shading
-            if shading.sky_table is not None:
-                return True
+        def prepare_sky_albedo(self, max_mib: float | None = None) -> bool:
+            """Make the sky albedo table (:mod:`.sky_albedo`) of ``max_mib`` (default
+            ``MAX_MIB``; a pilot's is smaller) the one this cloth reads, built if it has
+            none of that size, if this cloth can have one: multi-scale cloth whose textures
+            are constant, without parallax (the table holds each texel's own A), in JIT
+            variants. Whether it has one."""
             if not (self.multiscale and dr.is_jit_v(mi.Float) and not self.build.parallax
                     and self.footprint_data is not None) \
                     or any(t.is_spatially_varying() for t in self.params.textures.values()):
                 return False
             from .sky_albedo import build_sky_albedo_table, cached_table, keep_table
 
+            shading, tables = self.shading, self._sky_tables
             uv = (self._value("uv_scale"), self._value("uv_scale_v"))
             # What the calibration is built from is what the table is built from.
             key = self._calibration_key(*uv)
-            if (table := cached_table(key)) is not None:
-                shading.sky_table = table
-                return True
-            ctx = mi.BSDFContext()
+            table = tables.get(max_mib) or cached_table(key, max_mib)
+            if table is None:
+                ctx = mi.BSDFContext()
 
-            def sample(uv, wi, sample1, sample2):
-                si = dr.zeros(mi.SurfaceInteraction3f, dr.width(uv))
-                si.uv = uv
-                si.wi = wi
-                with dr.suspend_grad():
-                    bs, weight = self.sample(ctx, si, sample1, sample2)
-                kept = bs.pdf > 0.0
-                dr.eval(weight, kept)
-                return np.asarray(weight).reshape(3, -1), np.asarray(kept)
+                def sample(uv, wi, sample1, sample2):
+                    si = dr.zeros(mi.SurfaceInteraction3f, dr.width(uv))
+                    si.uv = uv
+                    si.wi = wi
+                    with dr.suspend_grad():
+                        bs, weight = self.sample(ctx, si, sample1, sample2)
+                    kept = bs.pdf > 0.0
+                    dr.eval(weight, kept)
+                    return np.asarray(weight).reshape(3, -1), np.asarray(kept)
 
-            from ..precompute._util import Progress
+                from ..precompute._util import Progress
 
-            h, w = self.maps.resolution
-            fd = self.footprint_data
-            # (A few seconds per cloth, on the first render that wants it: shown as the tables' builds are.)
-            prog = Progress(label=self.label)
-            shading.sky_table = keep_table(key, build_sky_albedo_table(
-                sample, h, w, uv, fd.dv, progress=lambda done, total: prog("sky albedo table", done, total, "directions")))
-            mi.Log(mi.LogLevel.Info, f"cloth [{self.label}]: sky albedo table {shading.sky_table.nbytes / 2**20:.1f} "
-                                     f"MiB in {shading.sky_table.seconds:.1f} s")
+                h, w = self.maps.resolution
+                fd = self.footprint_data
+                # (A few seconds per cloth, on the first render that wants it: shown as the tables' builds are.)
+                prog = Progress(label=self.label)
+                table = keep_table(key, build_sky_albedo_table(
+                    sample, h, w, uv, fd.dv, max_mib=max_mib,
+                    progress=lambda done, total: prog("sky albedo table", done, total, "directions")), max_mib)
+                mi.Log(mi.LogLevel.Info, f"cloth [{self.label}]: sky albedo table {table.nbytes / 2**20:.1f} "
+                                         f"MiB in {table.seconds:.1f} s")
+            tables[max_mib] = shading.sky_table = table
             return True
 
         def gap_transmission(self, si, active=True):
@@ -323,6 +325,7 @@ def make_cloth_class():
             changed = set(keys) if keys else set(EXPOSED)
             where = f"cloth [{self.label}]"
             self.shading.sky_table = None  # built from every parameter: again on request
+            self._sky_tables = {}
             for name in FLOAT_PARAMETERS:
                 if name in changed and name in EXPOSED:
                     _check_float(name, self._value(name), where)

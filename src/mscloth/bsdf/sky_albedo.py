@@ -44,7 +44,7 @@ CHANNELS_PER_BIN = 4
 #: Sample weights per table cell and node direction (a square number: a stratified grid).
 SAMPLES = 16
 
-#: The most a table may take: larger tiles get cells of several texels (:func:`cell_block`).
+#: The most a table may take: larger tiles get cells of several texels (:func:`cell_blocks`).
 #: (A 64^2 tile, the plane's, has cells of one texel within it: 124 MiB.)
 MAX_MIB = 128.0
 
@@ -191,11 +191,11 @@ class SkyAlbedoTable:
     Channel ``(side * m^2 + node) * 4 + c`` holds colour channel c of A for incident
     directions at node ``node`` (:func:`node_directions` of ``dv``, the visibility tables'
     bins per side) on side ``side`` (0: front, 1: the mirrored back); its cells are
-    ``block`` x ``block`` texels of the tile."""
+    ``block`` = (x, y) texels of the tile."""
 
     sats: ResidualSATs
     dv: int
-    block: int
+    block: tuple[int, int]
     #: :func:`shape_ratio` at ``steps`` points per node interval, flat (side, y, x, RGB
     #: and a zero): each read's factor; None: none.
     shape: mi.Float | None = None
@@ -245,12 +245,12 @@ class SkyAlbedoTable:
         fibre-level branch's point). The boxes' corners are rounded stochastically to
         whole cells by ``xi_round`` (one read per corner and node, the exact mean in
         expectation); a probe that rounds to nothing reads the cell under (x, y)."""
-        b = float(self.block)
-        cells = [round_box(x0 / b, y0 / b, x1 / b, y1 / b, xi_round.x, xi_round.y) for x0, y0, x1, y1 in boxes]
+        bx, by = (float(b) for b in self.block)
+        cells = [round_box(x0 / bx, y0 / by, x1 / bx, y1 / by, xi_round.x, xi_round.y) for x0, y0, x1, y1 in boxes]
         area = sum(((x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in cells[1:]),
                    (cells[0][2] - cells[0][0]) * (cells[0][3] - cells[0][1]))
         point = ~mi.Bool(use) | (area < 0.5)
-        px, py = dr.floor(x / b), dr.floor(y / b)
+        px, py = dr.floor(x / bx), dr.floor(y / by)
         first = tuple(dr.select(point, p, c) for p, c in zip((px, py, px + 1.0, py + 1.0), cells[0]))
         rest = [tuple(dr.select(point, px, c) if k % 2 == 0 else dr.select(point, py, c) for k, c in enumerate(box))
                 for box in cells[1:]]
@@ -268,30 +268,31 @@ class SkyAlbedoTable:
         return albedo if self.shape is None else albedo * self._shape_factor(cell, back)
 
 
-#: Tables built in this process, by the cloth's calibration key (the same cloth loaded
-#: again, as a benchmark or an animation does, builds none): the last ``KEPT_TABLES``.
+#: Tables built in this process, by the cloth's calibration key and the table's size (the
+#: same cloth loaded again, as a benchmark or an animation does, builds none): the last
+#: ``KEPT_TABLES`` (a cloth can hold a pilot's small table and a full one).
 _TABLES: "OrderedDict[str, SkyAlbedoTable]" = OrderedDict()
-KEPT_TABLES = 4
+KEPT_TABLES = 8
+
+def _with_settings(key: str | None, max_mib: float | None) -> str | None:
+    """``key``, the table's size and this module's settings (experiments change them)."""
+    max_mib = MAX_MIB if max_mib is None else max_mib
+    return None if key is None else f"{key}|{SAMPLES}|{max_mib}|{OUTER_INSETS}|{NODES_PER_BIN}|{OUTER_BIN_NODES}|{SHAPE_STEPS}"
 
 
-def _with_settings(key: str | None) -> str | None:
-    """``key`` and this module's settings (experiments change them)."""
-    return None if key is None else f"{key}|{SAMPLES}|{MAX_MIB}|{OUTER_INSETS}|{NODES_PER_BIN}|{OUTER_BIN_NODES}|{SHAPE_STEPS}"
-
-
-def cached_table(key: str | None) -> SkyAlbedoTable | None:
-    """The table built for ``key`` in this process, if it is kept."""
-    key = _with_settings(key)
+def cached_table(key: str | None, max_mib: float | None = None) -> SkyAlbedoTable | None:
+    """The table of ``max_mib`` (default ``MAX_MIB``) built for ``key`` in this process, if it is kept."""
+    key = _with_settings(key, max_mib)
     if key is None or key not in _TABLES:
         return None
     _TABLES.move_to_end(key)
     return _TABLES[key]
 
 
-def keep_table(key: str | None, table: SkyAlbedoTable) -> SkyAlbedoTable:
-    """Keep ``table`` for ``key`` (dropping the least recently used beyond
-    ``KEPT_TABLES``); returns it."""
-    key = _with_settings(key)
+def keep_table(key: str | None, table: SkyAlbedoTable, max_mib: float | None = None) -> SkyAlbedoTable:
+    """Keep ``table`` (built within ``max_mib``) for ``key`` (dropping the least recently
+    used beyond ``KEPT_TABLES``); returns it."""
+    key = _with_settings(key, max_mib)
     if key is not None:
         _TABLES[key] = table
         while len(_TABLES) > KEPT_TABLES:
@@ -299,15 +300,33 @@ def keep_table(key: str | None, table: SkyAlbedoTable) -> SkyAlbedoTable:
     return table
 
 
-def cell_block(height: int, width: int, dv: int, max_mib: float) -> int:
-    """Texels per table cell along each axis: the smallest power of two whose table
-    (2 m^2 nodes x 4 channels x cells, float32; m = :func:`nodes_per_axis`) fits ``max_mib`` and that divides the tile."""
-    block = 1
+#: Lanes of one launch of the build (directions batched up to it).
+BATCH_LANES = 1 << 20
+
+
+def _next_block(n: int, block: int) -> int | None:
+    """The smallest multiple of ``block`` above it that divides ``n`` (None: none)."""
+    return next((d for d in range(2 * block, n + 1, block) if n % d == 0), None)
+
+
+def cell_blocks(height: int, width: int, dv: int, max_mib: float) -> tuple[int, int]:
+    """(x, y) texels per table cell: square powers of two while both sides halve, the
+    smallest whose table (2 m^2 nodes x 4 channels x cells, float32; m =
+    :func:`nodes_per_axis`) fits ``max_mib``; past that, cells that divide the tile along
+    each axis, the narrower side grown first (a 51 x 64 knit: 17 or 51 texels high)."""
+    bx = by = 1
     per_cell = 2 * nodes_per_axis(dv) ** 2 * CHANNELS_PER_BIN * 4
-    while ((height // block + 1) * (width // block + 1) * per_cell > max_mib * 2 ** 20
-           and height % (2 * block) == 0 and width % (2 * block) == 0):
-        block *= 2
-    return block
+    while (height // by + 1) * (width // bx + 1) * per_cell > max_mib * 2 ** 20:
+        nx, ny = _next_block(width, bx), _next_block(height, by)
+        if nx == 2 * bx and ny == 2 * by:
+            bx, by = nx, ny
+        elif nx is not None and (ny is None or bx <= by):
+            bx = nx
+        elif ny is not None:
+            by = ny
+        else:
+            break
+    return bx, by
 
 
 #: (lanes' uv, lanes' local wi, sample1, sample2) -> (weight RGB as numpy (3, n), kept mask
@@ -328,8 +347,8 @@ def build_sky_albedo_table(sample: SampleFn, height: int, width: int, uv_scale: 
     start = time.perf_counter()
     samples = SAMPLES if samples is None else samples
     max_mib = MAX_MIB if max_mib is None else max_mib
-    block = cell_block(height, width, dv, max_mib)
-    rows, cols = height // block, width // block
+    bx, by = cell_blocks(height, width, dv, max_mib)
+    rows, cols = height // by, width // bx
     cells = rows * cols
     g = max(1, int(round(math.sqrt(samples))))
     n = g * g
@@ -349,23 +368,32 @@ def build_sky_albedo_table(sample: SampleFn, height: int, width: int, uv_scale: 
     py = (perm // g + np.repeat(shift[:, 4], n)) / g
     ix = np.repeat(np.arange(cells) % cols, n)
     iy = np.repeat(np.arange(cells) // cols, n)
-    u = (ix + px) * block / (width * uv_scale[0])
-    v = (iy + py) * block / (height * uv_scale[1])
+    u = (ix + px) * bx / (width * uv_scale[0])
+    v = (iy + py) * by / (height * uv_scale[1])
     uv = mi.Point2f(u.astype(np.float32), v.astype(np.float32))
     sample1 = mi.Float(np.fmod(s1, 1.0).astype(np.float32))
     sample2 = mi.Point2f(np.fmod(s2x, 1.0).astype(np.float32), np.fmod(s2y, 1.0).astype(np.float32))
     centres = node_directions(dv)
     n_dirs = len(centres)
     values = np.zeros((2 * n_dirs, CHANNELS_PER_BIN, rows, cols), dtype=np.float64)
+    # Directions in batches of about BATCH_LANES lanes: a launch per direction costs more
+    # than a small table's samples (a 4 MiB table took 6 s, its 1922 launches).
+    lanes = cells * n
+    batch = max(1, min(n_dirs, BATCH_LANES // lanes))
+    index = dr.arange(mi.UInt32, batch * lanes) % lanes
+    uv, sample1, sample2 = (dr.gather(type(a), a, index) for a in (uv, sample1, sample2))
     for side in range(2):
-        for b, c in enumerate(centres):
-            # Opaque: one kernel for every direction, not one compiled per literal.
-            wi = mi.Vector3f(*(dr.opaque(mi.Float, float(v)) for v in (c[0], c[1], c[2] * (1.0 if side == 0 else -1.0))))
-            weight, kept = sample(uv, wi, sample1, sample2)
-            w = np.where(kept[None], weight, 0.0).reshape(3, cells, n).mean(axis=2)
-            values[side * n_dirs + b, :3] = w.reshape(3, rows, cols)
+        for b0 in range(0, n_dirs, batch):
+            c = centres[b0:b0 + batch] * (1.0, 1.0, 1.0 if side == 0 else -1.0)
+            k = len(c)
+            wi = mi.Vector3f(*(mi.Float(np.repeat(c[:, i], lanes).astype(np.float32)) for i in range(3)))
+            points = (uv, sample1, sample2) if k == batch else \
+                tuple(dr.gather(type(a), a, dr.arange(mi.UInt32, k * lanes)) for a in (uv, sample1, sample2))
+            weight, kept = sample(points[0], wi, *points[1:])
+            w = np.where(kept[None], weight, 0.0).reshape(3, k, cells, n).mean(axis=3)
+            values[side * n_dirs + b0:side * n_dirs + b0 + k, :3] = w.transpose(1, 0, 2).reshape(k, 3, rows, cols)
             if progress is not None:
-                progress(side * n_dirs + b + 1, 2 * n_dirs)
+                progress(side * n_dirs + b0 + k, 2 * n_dirs)
     sat, mean = build_sat(values.reshape(-1, rows, cols))
     shape = None
     if SHAPE_STEPS:
@@ -373,4 +401,4 @@ def build_sky_albedo_table(sample: SampleFn, height: int, width: int, uv_scale: 
         ratio = shape_ratio(values[:, :3].mean(axis=(2, 3)).reshape(2, m, m, 3), dv, SHAPE_STEPS)
         shape = flat_array(np.concatenate([ratio, np.zeros(ratio.shape[:-1] + (1,))], axis=-1).ravel())
     # Channel-minor: a corner's four channels of one bin in one packet.
-    return SkyAlbedoTable(ResidualSATs(sat, mean), dv, block, shape, SHAPE_STEPS, n, time.perf_counter() - start)
+    return SkyAlbedoTable(ResidualSATs(sat, mean), dv, (bx, by), shape, SHAPE_STEPS, n, time.perf_counter() - start)

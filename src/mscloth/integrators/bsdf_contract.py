@@ -57,9 +57,10 @@ class FootprintBSDF(Protocol):
         """``(width_u, width_v)``: the footprint's full widths in texels of the BSDF's
         pattern tile (the ``footprint_texels_*`` AOVs), 0 where inactive."""
 
-    def prepare_sky_albedo(self) -> bool:
-        """Make ready what ``eval_pdf_sample_n``'s ``sky_albedo`` reads (once, before a
-        render traces); whether this BSDF gives it."""
+    def prepare_sky_albedo(self, max_mib: float | None = None) -> bool:
+        """Make ready what ``eval_pdf_sample_n``'s ``sky_albedo`` reads (before a render
+        traces), within ``max_mib`` MiB if given (a pilot's coarser table); whether this
+        BSDF gives it."""
 
     def gap_transmission(self, si, active=True):
         """The fraction of light crossing the surface straight along ``-si.wi`` through
@@ -149,13 +150,13 @@ def distinct_bsdfs(scene, keep) -> list:
     return found
 
 
-def prepare_sky_albedo(bsdf) -> bool:
-    """``bsdf.prepare_sky_albedo()`` where it gives ``sky_albedo``
+def prepare_sky_albedo(bsdf, max_mib: float | None = None) -> bool:
+    """``bsdf.prepare_sky_albedo(max_mib)`` where it gives ``sky_albedo``
     (:func:`gives_sky_albedo`) and has one: whether its sampled direction's expected
     weight is known."""
     if bsdf is None or not (gives_sky_albedo(bsdf) and hasattr(bsdf, "prepare_sky_albedo")):
         return False
-    return bool(bsdf.prepare_sky_albedo())
+    return bool(bsdf.prepare_sky_albedo(max_mib))
 
 
 def footprint_texels(bsdf, si, active=True):

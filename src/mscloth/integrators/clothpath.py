@@ -126,10 +126,12 @@ Footprint convention: the footprint of a shading point is the UV parallelogram c
        directions bring beyond c L. 0: off; 1 suits open cloth under the sky, less cloth
        whose directions see other surfaces (docs/performance-log.md L60). Not given:
        the share that leaves the least noise in the scene, measured by a pilot render
-       (8192 pixels of the frame, three times at the render's sample count), or 0
-       where it would cut the variance by less than the table's reads cost
-       (:mod:`mscloth.integrators.sky_share_pilot`); off for renders of fewer samples
-       per pass (pixels x spp), which the table's build would outlast.
+       (8192 pixels of the frame, three times at the render's sample count, on small
+       tables; the full ones are built only for a share), or 0 where it would cut the
+       variance by less than the table's reads cost
+       (:mod:`mscloth.integrators.sky_share_pilot`; stored in the table cache, so a
+       scene rendered again runs none); off for renders of fewer samples per pass
+       (pixels x spp), which the table's build would outlast.
    * - gap_shadows
      - boolean
      - true
@@ -313,11 +315,11 @@ def frame_lanes(scene, lanes: int) -> float:
     return lanes * (w * h) / max(cw * ch, 1)
 
 
-def sky_albedo_bsdfs(scene) -> list:
+def sky_albedo_bsdfs(scene, max_mib: float | None = None) -> list:
     """The distinct BSDFs of ``scene``'s shapes that give their sampled direction's
-    expected weight (``sky_albedo``), their tables made ready
-    (:func:`.bsdf_contract.prepare_sky_albedo`)."""
-    return contract.distinct_bsdfs(scene, contract.prepare_sky_albedo)
+    expected weight (``sky_albedo``), their tables of ``max_mib`` (default: full) made
+    ready and read (:func:`.bsdf_contract.prepare_sky_albedo`)."""
+    return contract.distinct_bsdfs(scene, lambda bsdf: contract.prepare_sky_albedo(bsdf, max_mib))
 
 
 def uniform_radiance(env) -> tuple:
@@ -457,6 +459,18 @@ def make_clothpath_class():
                     f"gap_shadows = {self.gap_shadows}, "
                     f"sky_share = {'auto' if self.sky_share is None else self.sky_share}]")
 
+        def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
+            # sky_share auto's pilot runs here, before the render traces: run from within
+            # ``sample`` its kernels would evaluate the camera rays traced so far, and the
+            # render's kernel would differ (and miss Dr.Jit's cache) with the share stored.
+            sensor_obj = scene.sensors()[sensor] if isinstance(sensor, int) else sensor
+            count = spp if spp else sensor_obj.sampler().sample_count()
+            crop = sensor_obj.film().crop_size()
+            if self.sky_share is None and SKY_TABLE_SHARE is None \
+                    and frame_lanes(scene, int(crop[0]) * int(crop[1]) * count) >= SKY_TABLE_LANES:
+                self.pilot_sky_share(scene, count)
+            return mi.SamplingIntegrator.render(self, scene, sensor, seed, spp, develop, evaluate)
+
         def sample(self, scene, sampler, ray, medium=None, active=True):
             if self.max_depth == 0:
                 zero = mi.Float(0.0)
@@ -473,51 +487,65 @@ def make_clothpath_class():
             share = self.sky_share
             if share is None:  # auto
                 share = 0.0
-                if frame_lanes(scene, dr.width(ray_d.o)) >= SKY_TABLE_LANES and self.sky_table_possible(scene):
+                if frame_lanes(scene, dr.width(ray_d.o)) >= SKY_TABLE_LANES:
                     share = SKY_TABLE_SHARE
                     if share is None:
                         share = self.pilot_sky_share(scene, sampler.sample_count()).share
+                    elif not self.sky_table_possible(scene):
+                        share = 0.0
             return self._trace(scene, sampler, ray_d, has_diff, mi.Float(width0),
                                mi.Float(spread0), mi.Bool(active), share)[:3]
 
-        def sky_table_possible(self, scene) -> bool:
+        def sky_table_possible(self, scene, max_mib: float | None = None) -> bool:
             """Whether the sky's control variate can run in ``scene``: a uniform sky left to
             BSDF sampling (``emitter_sampling`` ``all``), emitters not hidden, an RGB JIT
-            variant, and a BSDF that gives A (:func:`sky_albedo_bsdfs`, whose tables this
-            builds). Not with the K-sample experiment, which would take the share twice."""
+            variant, and a BSDF that gives A (:func:`sky_albedo_bsdfs`, whose tables of
+            ``max_mib`` this builds, or makes the ones read). Not with the K-sample
+            experiment, which would take the share twice."""
             return bool(not SKY_CONTROL_VARIATE_SHARE and self.emitter_sampling == "all"
                         and _is_uniform(scene.environment()) and dr.is_jit_v(mi.Float) and mi.is_rgb
-                        and not mi.is_polarized and not self.hide_emitters and sky_albedo_bsdfs(scene))
+                        and not mi.is_polarized and not self.hide_emitters and sky_albedo_bsdfs(scene, max_mib))
 
         def pilot_sky_share(self, scene, spp: int) -> sky_share_pilot.SkySharePilot:
-            """``sky_share`` auto's share for ``scene`` rendered at ``spp`` samples per pixel
-            (:mod:`.sky_share_pilot`): PILOT_PIXELS pixels of its first sensor rendered
-            three times with the control variate's term recorded at c = 1 instead of
-            added. Kept per scene description and spp (:func:`.sky_share_pilot.scene_key`):
-            a scene loaded again measures nothing; a change its description does not show
-            keeps the share, which moves the noise, not the mean."""
+            """``sky_share`` auto's share for ``scene`` rendered at ``spp`` samples per pixel:
+            :meth:`measure_sky_share` with the pilot's small tables, kept per scene
+            description and spp (:func:`.sky_share_pilot.scene_key`) in this process and on
+            disk: a scene rendered again measures nothing; a change its description does not
+            show keeps the share, which moves the noise, not the mean."""
             key = sky_share_pilot.scene_key(scene, spp)
             pilot = sky_share_pilot.kept_share(key)
-            if pilot is not None:
-                return pilot
+            if pilot is None:
+                pilot = sky_share_pilot.keep_share(key, self.measure_sky_share(scene, spp))
+            return pilot
+
+        def measure_sky_share(self, scene, spp: int,
+                              max_mib: float | None = sky_share_pilot.PILOT_MAX_MIB) -> sky_share_pilot.SkySharePilot:
+            """The pilot (:mod:`.sky_share_pilot`): PILOT_PIXELS pixels of ``scene``'s first
+            sensor rendered three times at ``spp`` with the control variate's term recorded
+            at c = 1 instead of added, A read from tables of ``max_mib`` (None: the full
+            ones); share 0 where no table can be read."""
+            if not self.sky_table_possible(scene, max_mib):
+                return sky_share_pilot.SkySharePilot(0.0, 0.0, 0.0, 0)
             x, y = sky_share_pilot.pilot_pixels(scene.sensors()[0])
-            F, T = zip(*(self.sky_terms(scene, x, y, spp, sky_share_pilot.PILOT_SEED + k) for k in range(3)))
+            F, T = zip(*(self.sky_terms(scene, x, y, spp, sky_share_pilot.PILOT_SEED + k, max_mib) for k in range(3)))
             pilot = sky_share_pilot.choose_share(F[:2], T[:2], F[2])
             mi.Log(mi.LogLevel.Info, f"clothpath: sky_share auto = {pilot.share:.2f} (pilot: optimal "
                    f"{pilot.optimal:.2f}, relative variance cut {pilot.variance_cut:.0%})")
-            return sky_share_pilot.keep_share(key, pilot)
+            return pilot
 
-        def sky_terms(self, scene, x, y, spp: int, seed: int):
+        def sky_terms(self, scene, x, y, spp: int, seed: int, max_mib: float | None = None):
             """(F, T): per pixel (``x``, ``y``) of ``scene``'s first sensor, rendered at
             ``spp`` with its sampler seeded by ``seed`` (:func:`.sky_share_pilot.camera_rays`),
             the mean luminance without the sky's control variate and the mean of its term
-            at c = 1, recorded instead of added (float64 arrays). The pilot's renders, and
-            ``bench/sky_table_bias.py``'s: T's mean is L_env times the table's error."""
+            at c = 1 with tables of ``max_mib`` (default: the full ones), recorded instead of
+            added (float64 arrays). The pilot's renders, and ``bench/sky_table_bias.py``'s:
+            T's mean is L_env times the table's error."""
             rays, sampler = sky_share_pilot.camera_rays(scene.sensors()[0], x, y, spp, seed)
             width0, spread0 = fp.camera_cone(rays.o, rays.d, rays.o_x, rays.d_x, rays.o_y, rays.d_y)
             with dr.suspend_grad():
                 result, valid, _, term = self._trace(scene, sampler, rays, True, mi.Float(width0),
-                                                     mi.Float(spread0), mi.Bool(True), 0.0, record_sky=True)
+                                                     mi.Float(spread0), mi.Bool(True), 0.0, record_sky=True,
+                                                     table_mib=max_mib)
                 f, t = mi.luminance(dr.select(valid, result, 0.0)), mi.luminance(term)
                 dr.eval(f, t)
             return tuple(np.array(a, dtype=np.float64).reshape(len(x), spp).mean(axis=1) for a in (f, t))
@@ -545,10 +573,12 @@ def make_clothpath_class():
                     active &= logical_not(scene.ray_test(si.spawn_ray_to(ds.p), active))
             return ds, em_weight, active, si.to_local(ds.d)
 
-        def _trace(self, scene, sampler, ray_d, has_diff, width0, spread0, active, sky_share, record_sky=False):
+        def _trace(self, scene, sampler, ray_d, has_diff, width0, spread0, active, sky_share, record_sky=False,
+                   table_mib=None):
             """(radiance, valid, AOVs, the control variate's term or None) of the paths of
             camera rays ``ray_d`` (whole-pixel differentials), the sky's control variate
-            taking ``sky_share``; ``record_sky``: not added but returned, at c = 1 (the pilot)."""
+            taking ``sky_share`` with tables of ``table_mib`` (default: full); ``record_sky``:
+            not added but returned, at c = 1 (the pilot)."""
             jit = dr.is_jit_v(mi.Float)
             bsdf_ctx = mi.BSDFContext()
             max_depth = self.max_depth
@@ -596,7 +626,7 @@ def make_clothpath_class():
 
             sky_table_radiance = None
             # (Not with the experiment's residual, which would take the share twice.)
-            if (sky_share or record_sky) and self.sky_table_possible(scene):
+            if (sky_share or record_sky) and self.sky_table_possible(scene, table_mib):
                 sky_table_radiance = mi.Spectrum(*((1.0 if record_sky else sky_share) * v
                                                    for v in uniform_radiance(scene.environment())))
             record_sky = record_sky and sky_table_radiance is not None

@@ -16,12 +16,23 @@ and sample count, three times with independent seeds: the noise that counts is t
 estimate's, stratification included, not how the image varies across the frame, so the
 statistics come from two renders' differences (E[(x1 - x2)(y1 - y2)] / 2 = Cov(x, y)); each
 pixel weighs by the inverse square of its value in the third (relative error, as ``make
-bench`` measures it, without tying the weight to the noise it weighs)."""
+bench`` measures it, without tying the weight to the noise it weighs).
+
+The pilot reads small tables of A (``PILOT_MAX_MIB``, cells a few times coarser): the share
+comes from noise within pixels, which a cell's mean barely changes, so a scene that takes
+none builds no full table. Shares are kept in this process and on disk (``sky_shares/`` of
+the table cache, a few hundred bytes each, keyed by the scene's description, the spp, the
+variant and the code): a scene rendered again, in any process, runs no pilot."""
 from __future__ import annotations
 
+import hashlib
+import json
 import re
+import warnings
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
+from functools import lru_cache
+from pathlib import Path
 
 import drjit as dr
 import mitsuba as mi
@@ -38,6 +49,9 @@ PILOT_SEED = 7_919
 #: 0.61 against 0.71). On the built-in scenes at 16 spp (L61): sphere 0.08 and satin-plane
 #: 0.04 stay off; drape 0.13, swatch 0.16, denim 0.18, satin 0.25 and plane 0.82 take their share.
 MIN_VARIANCE_CUT = 0.12
+#: The size of the pilot's tables of A (MiB; the full ones' ``sky_albedo.MAX_MIB``): cells
+#: 32 times larger in area, built in a few hundred ms.
+PILOT_MAX_MIB = 4.0
 #: Pixels darker than this fraction of the pilot's mean weigh as if this bright (a black
 #: pixel's relative error is not defined).
 DARK_FLOOR = 0.05
@@ -71,16 +85,78 @@ def scene_key(scene, spp: int) -> tuple:
     return text, int(spp)
 
 
+#: The on-disk store's format and directory in the table cache (:mod:`mscloth.cache`).
+FORMAT = "mscloth-sky-share/1"
+SUBDIR = "sky_shares"
+
+
+@lru_cache(maxsize=1)
+def _code_fingerprint() -> str:
+    """SHA-256 of the sources whose behaviour a share measures (BSDFs, their scattering,
+    the integrators)."""
+    root = Path(__file__).resolve().parents[1]
+    hs = hashlib.sha256()
+    for path in sorted([*root.joinpath("bsdf").glob("*.py"), *root.joinpath("scattering").glob("*.py"),
+                        *root.joinpath("integrators").glob("*.py")]):
+        hs.update(path.name.encode())
+        hs.update(path.read_bytes())
+    return hs.hexdigest()
+
+
+def share_path(key: tuple, cache_dir=None) -> Path:
+    """Where the share of ``key`` is stored: its name hashes the key, the variant, the
+    code and the settings that experiments change at run time."""
+    from ..bsdf import sky_albedo
+    from ..cache import default_cache_dir
+
+    settings = (PILOT_PIXELS, PILOT_SEED, MIN_VARIANCE_CUT, DARK_FLOOR, PILOT_MAX_MIB,
+                sky_albedo.SAMPLES, sky_albedo.OUTER_INSETS, sky_albedo.NODES_PER_BIN,
+                sky_albedo.OUTER_BIN_NODES, sky_albedo.SHAPE_STEPS)
+    hs = hashlib.sha256(f"{FORMAT}\n{_code_fingerprint()}\n{mi.variant()}\n{settings}\n{key[1]}\n".encode())
+    hs.update(key[0].encode())
+    root = default_cache_dir() if cache_dir is None else Path(cache_dir)
+    return root / SUBDIR / f"{hs.hexdigest()}.json"
+
+
 def kept_share(key: tuple) -> SkySharePilot | None:
-    """The share measured for ``key`` in this process, if kept."""
-    return _SHARES.get(key)
+    """The share measured for ``key`` in this process, or stored on disk by any; None if
+    neither (an unreadable file counts as none)."""
+    if key in _SHARES:
+        return _SHARES[key]
+    path = share_path(key)
+    if not path.is_file():
+        return None
+    try:
+        pilot = SkySharePilot(**json.loads(path.read_text()))
+        if not all(np.isfinite([pilot.share, pilot.optimal, pilot.variance_cut])) or not 0.0 <= pilot.share <= 1.0:
+            raise ValueError("share out of range")
+    except Exception as exc:  # noqa: BLE001 (any damage: measure again)
+        warnings.warn(f"mscloth: ignoring stored sky share {path}: {exc}", RuntimeWarning, stacklevel=2)
+        return None
+    from ..cache import mark_used
+
+    mark_used(path)
+    return _keep(key, pilot)
 
 
-def keep_share(key: tuple, pilot: SkySharePilot) -> SkySharePilot:
+def _keep(key: tuple, pilot: SkySharePilot) -> SkySharePilot:
     _SHARES[key] = pilot
     while len(_SHARES) > KEPT_SHARES:
         _SHARES.popitem(last=False)
     return pilot
+
+
+def keep_share(key: tuple, pilot: SkySharePilot) -> SkySharePilot:
+    """Keep ``pilot`` for ``key`` in this process and on disk (a cache that cannot be
+    written only costs a pilot next time); returns it."""
+    from ..atomic import atomic_write
+
+    path = share_path(key)
+    try:
+        atomic_write(path, lambda f: f.write(json.dumps(asdict(pilot)).encode()))
+    except OSError as exc:
+        warnings.warn(f"mscloth: cannot store sky share {path}: {exc}", RuntimeWarning, stacklevel=2)
+    return _keep(key, pilot)
 
 
 def pilot_pixels(sensor) -> tuple[np.ndarray, np.ndarray]:
