@@ -444,3 +444,39 @@ def test_shares_are_stored_on_disk_and_read_by_a_new_process(monkeypatch, tmp_pa
     monkeypatch.setattr(pilot, "_SHARES", collections.OrderedDict())
     with pytest.warns(RuntimeWarning, match="sky share"):
         assert pilot.kept_share(key) is None
+
+
+def test_cloths_whose_tables_differ_in_cells_trace_one_callable():
+    """Two cloths whose sky tables have cells of different sizes (tiles of 64^2 and 128^2
+    texels) trace the same code (the cells' sizes are read, not literals): the pilot's
+    kernel is no larger than with two cloths of one tile size (twice the code otherwise)."""
+    import drjit as dr
+
+    from mscloth.integrators import sky_share_pilot as pilot
+
+    def kernel_operations(resolutions):
+        scene = {"type": "scene", "integrator": {"type": "clothpath"},
+                 "sensor": {"type": "perspective", "fov": 30,
+                            "to_world": mi.ScalarTransform4f().look_at(origin=[0, -2, 3], target=[0, 0, 0],
+                                                                       up=[0, 0, 1]),
+                            "film": {"type": "hdrfilm", "width": 16, "height": 16}},
+                 "sky": {"type": "constant", "radiance": 1.0}}
+        for k, res in enumerate(resolutions):
+            scene[f"square{k}"] = {"type": "rectangle",
+                                   "to_world": mi.ScalarTransform4f().translate([k - 0.5, 0, 0]).scale(0.5),
+                                   "bsdf": dict(ROUGH, resolution=res, uv_scale=10.0 + k)}
+        scene = mi.load_dict(scene)
+        integrator = scene.integrator()
+        assert integrator.sky_table_possible(scene, pilot.PILOT_MAX_MIB)
+        blocks = {s.bsdf().shading.sky_table.block for s in scene.shapes()}
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
+        dr.kernel_history()
+        integrator.sky_terms(scene, np.arange(16), np.arange(16), 1, 0, pilot.PILOT_MAX_MIB)
+        history = dr.kernel_history()
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+        return blocks, max(k.get("operation_count", 0) for k in history)
+
+    same_blocks, same = kernel_operations((64, 64))
+    other_blocks, other = kernel_operations((64, 128))
+    assert len(same_blocks) == 1 and len(other_blocks) == 2
+    assert other < 1.1 * same, (same, other)

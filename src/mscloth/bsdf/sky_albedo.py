@@ -33,7 +33,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..jit_arrays import flat_array, gather_block
+from ..jit_arrays import flat_array, gather_block, opaque
 from ..precompute.direction_bins import square_to_hemisphere
 from ..precompute.summed_area import build_sat
 from .sat_queries import RectUnion, ResidualSATs, round_box
@@ -245,12 +245,13 @@ class SkyAlbedoTable:
         fibre-level branch's point). The boxes' corners are rounded stochastically to
         whole cells by ``xi_round`` (one read per corner and node, the exact mean in
         expectation); a probe that rounds to nothing reads the cell under (x, y)."""
-        bx, by = (float(b) for b in self.block)
-        cells = [round_box(x0 / bx, y0 / by, x1 / bx, y1 / by, xi_round.x, xi_round.y) for x0, y0, x1, y1 in boxes]
+        # (Opaque: cloths whose tables' cells differ trace the same code, one callable.)
+        rx, ry = (opaque(mi.Float, 1.0 / b) for b in self.block)
+        cells = [round_box(x0 * rx, y0 * ry, x1 * rx, y1 * ry, xi_round.x, xi_round.y) for x0, y0, x1, y1 in boxes]
         area = sum(((x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in cells[1:]),
                    (cells[0][2] - cells[0][0]) * (cells[0][3] - cells[0][1]))
         point = ~mi.Bool(use) | (area < 0.5)
-        px, py = dr.floor(x / bx), dr.floor(y / by)
+        px, py = dr.floor(x * rx), dr.floor(y * ry)
         first = tuple(dr.select(point, p, c) for p, c in zip((px, py, px + 1.0, py + 1.0), cells[0]))
         rest = [tuple(dr.select(point, px, c) if k % 2 == 0 else dr.select(point, py, c) for k, c in enumerate(box))
                 for box in cells[1:]]
