@@ -466,7 +466,7 @@ def make_clothpath_class():
             sensor_obj = scene.sensors()[sensor] if isinstance(sensor, int) else sensor
             count = spp if spp else sensor_obj.sampler().sample_count()
             crop = sensor_obj.film().crop_size()
-            if self.sky_share is None and SKY_TABLE_SHARE is None \
+            if self.sky_share is None and SKY_TABLE_SHARE is None and dr.is_jit_v(mi.Float) \
                     and frame_lanes(scene, int(crop[0]) * int(crop[1]) * count) >= SKY_TABLE_LANES:
                 self.pilot_sky_share(scene, count)
             return mi.SamplingIntegrator.render(self, scene, sensor, seed, spp, develop, evaluate)
