@@ -284,7 +284,7 @@ def bench_sky_shares(scenes, res) -> list[tuple]:
         if not integrator.sky_table_possible(scene, PILOT_MAX_MIB):
             continue
         start = time.perf_counter()
-        pilot = integrator.measure_sky_share(scene, 16)
+        pilot = integrator.decide_sky_share(scene, 16)
         rows.append((name, pilot.share, pilot.optimal, pilot.variance_cut, time.perf_counter() - start))
         print(f"  sky share {name}: {pilot.share:.2f} (c* {pilot.optimal:.2f}, cut {pilot.variance_cut:.3f})",
               flush=True)
@@ -703,8 +703,9 @@ def _table_lines(table_rows, sky_rows=(), share_rows=()) -> list[str]:
     if share_rows:
         lines += [
             "The sky's share (`clothpath` `sky_share` auto, 16 spp): what the pilot render measured per scene",
-            "(`mscloth.integrators.sky_share_pilot`, on its small tables of A; the full tables are built only",
-            "where it takes a share): c* leaves the least noise; the share is c* in [0, 1], or 0 where its cut",
+            "(`mscloth.integrators.sky_share_pilot`, on its small tables of A, again on the full ones where its cut",
+            "is within 0.03 of the least that takes a share; the full tables are built only for a share): c* leaves",
+            "the least noise; the share is c* in [0, 1], or 0 where its cut",
             "in a pixel's relative variance is under the table's reads' price. Seconds: the pilot with its",
             "kernel's compilation (Dr.Jit caches it on disk); a render reads the share stored on disk after.",
             "",

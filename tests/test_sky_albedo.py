@@ -480,3 +480,31 @@ def test_cloths_whose_tables_differ_in_cells_trace_one_callable():
     other_blocks, other = kernel_operations((64, 128))
     assert len(same_blocks) == 1 and len(other_blocks) == 2
     assert other < 1.1 * same, (same, other)
+
+
+def test_a_pilot_near_the_threshold_measures_again_on_the_full_tables(monkeypatch):
+    """Small tables read a cut a little off the full ones': a share refused by less than
+    PILOT_MARGIN is measured again on the full tables (whose answer stands); one refused
+    by more, or taken, is not."""
+    from mscloth.integrators import sky_share_pilot as pilot
+
+    scene = cloth_under_sky(ROUGH, 40.0, None)
+    integrator = scene.integrator()
+    calls = []
+
+    def fake(cuts):
+        def measure(scene, spp, max_mib=pilot.PILOT_MAX_MIB):
+            calls.append(max_mib)
+            cut = cuts[max_mib]
+            return pilot.SkySharePilot(0.4 if cut >= pilot.MIN_VARIANCE_CUT else 0.0, 0.4, cut, 100)
+        return measure
+
+    low = pilot.MIN_VARIANCE_CUT - pilot.PILOT_MARGIN
+    for small, full, expected_calls, share in ((low + 0.005, 0.13, [pilot.PILOT_MAX_MIB, None], 0.4),
+                                               (low + 0.005, 0.10, [pilot.PILOT_MAX_MIB, None], 0.0),
+                                               (low - 0.005, 0.13, [pilot.PILOT_MAX_MIB], 0.0),
+                                               (0.5, 0.13, [pilot.PILOT_MAX_MIB], 0.4)):
+        calls.clear()
+        monkeypatch.setattr(integrator, "measure_sky_share", fake({pilot.PILOT_MAX_MIB: small, None: full}))
+        assert integrator.decide_sky_share(scene, 4).share == share
+        assert calls == expected_calls
