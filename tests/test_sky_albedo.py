@@ -508,3 +508,25 @@ def test_a_pilot_near_the_threshold_measures_again_on_the_full_tables(monkeypatc
         monkeypatch.setattr(integrator, "measure_sky_share", fake({pilot.PILOT_MAX_MIB: small, None: full}))
         assert integrator.decide_sky_share(scene, 4).share == share
         assert calls == expected_calls
+
+
+def test_a_crops_pilot_is_not_stored(monkeypatch, tmp_path):
+    """A crop's pilot reads another share than its frame's: kept in the process that
+    measured it, never stored on disk; the whole frame's is stored and read by crops."""
+    import collections
+
+    from mscloth.integrators import sky_share_pilot as pilot
+
+    monkeypatch.setenv("MSCLOTH_CACHE", str(tmp_path))
+    monkeypatch.setattr(pilot, "_SHARES", collections.OrderedDict())
+    crop = cloth_under_sky(ROUGH, 40.0, None, crop=(4, 2, 8, 5))
+    key = pilot.scene_key(crop, 4)
+    measured = crop.integrator().pilot_sky_share(crop, 4)
+    assert pilot.kept_share(key) == measured and not pilot.share_path(key).exists()
+    monkeypatch.setattr(pilot, "_SHARES", collections.OrderedDict())
+    full = cloth_under_sky(ROUGH, 40.0, None)
+    assert pilot.scene_key(full, 4) == key
+    whole = full.integrator().pilot_sky_share(full, 4)
+    assert pilot.share_path(key).is_file()
+    monkeypatch.setattr(pilot, "_SHARES", collections.OrderedDict())
+    assert crop.integrator().pilot_sky_share(crop, 4) == whole

@@ -151,14 +151,15 @@ def _keep(key: tuple, pilot: SkySharePilot) -> SkySharePilot:
     return pilot
 
 
-def keep_share(key: tuple, pilot: SkySharePilot) -> SkySharePilot:
-    """Keep ``pilot`` for ``key`` in this process and on disk (a cache that cannot be
-    written only costs a pilot next time); returns it."""
+def keep_share(key: tuple, pilot: SkySharePilot, store: bool = True) -> SkySharePilot:
+    """Keep ``pilot`` for ``key`` in this process and, with ``store``, on disk (a cache
+    that cannot be written only costs a pilot next time); returns it."""
     from ..atomic import atomic_write
 
     path = share_path(key)
     try:
-        atomic_write(path, lambda f: f.write(json.dumps(asdict(pilot)).encode()))
+        if store:
+            atomic_write(path, lambda f: f.write(json.dumps(asdict(pilot)).encode()))
     except OSError as exc:
         warnings.warn(f"mscloth: cannot store sky share {path}: {exc}", RuntimeWarning, stacklevel=2)
     return _keep(key, pilot)
