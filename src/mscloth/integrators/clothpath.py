@@ -517,10 +517,11 @@ def make_clothpath_class():
             if pilot is None:
                 # A crop's pilot is not the frame's (performance log L63: denim's 0.27 cut
                 # read 0.12-0.21 on crops): kept in this process only, the frame's stored
-                # share preferred by every later one.
+                # share preferred by every later one. (Nor is "no table here" stored.)
                 film = scene.sensors()[0].film()
                 whole = tuple(film.crop_size()) == tuple(film.size()) and not any(film.crop_offset())
-                pilot = sky_share_pilot.keep_share(key, self.decide_sky_share(scene, spp), store=whole)
+                pilot = self.decide_sky_share(scene, spp)
+                pilot = sky_share_pilot.keep_share(key, pilot, store=whole and pilot.pixels > 0)
             return pilot
 
         def decide_sky_share(self, scene, spp: int) -> sky_share_pilot.SkySharePilot:
