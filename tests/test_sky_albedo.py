@@ -156,11 +156,12 @@ def test_a_changed_parameter_drops_the_table():
     assert bsdf.prepare_sky_albedo() and bsdf.shading.sky_table is not before
 
 
-def cloth_under_sky(bsdf_params, uv_tiles: float, sky_share: float | None, roof: bool = False, crop=None):
+def cloth_under_sky(bsdf_params, uv_tiles: float, sky_share: float | None, roof: bool = False, crop=None,
+                    sampler=None):
     """A cloth square filling a 16 x 16 view from above at 35 degrees, under a constant sky
     only, ``uv_tiles`` tiles across, rendered by ``clothpath`` with ``sky_share`` (None:
     auto); with ``roof``, a black square 4 units above it (above the camera too) hides all
-    but the last 5 degrees above the horizon; ``crop``: the film's (x, y, width, height)."""
+    but the last 5 degrees above the horizon; ``crop``: the film's (x, y, width, height); ``sampler``: the sensor's sampler type (default: independent)."""
     integrator = {"type": "clothpath", "emitter_sampling": "all"}
     if sky_share is not None:
         integrator["sky_share"] = sky_share
@@ -172,7 +173,7 @@ def cloth_under_sky(bsdf_params, uv_tiles: float, sky_share: float | None, roof:
         "integrator": integrator,
         "sensor": {"type": "perspective", "fov": 12,
                    "to_world": mi.ScalarTransform4f().look_at(origin=[0, -2.3, 3.3], target=[0, 0, 0], up=[0, 0, 1]),
-                   "film": film},
+                   "film": film, **({} if sampler is None else {"sampler": {"type": sampler}})},
         "square": {"type": "rectangle",
                    "bsdf": dict(bsdf_params, uv_scale=uv_tiles) if bsdf_params["type"] == "cloth" else bsdf_params},
         "sky": {"type": "constant", "radiance": {"type": "rgb", "value": [1.0, 2.0, 3.0]}}}
@@ -530,3 +531,14 @@ def test_a_crops_pilot_is_not_stored(monkeypatch, tmp_path):
     assert pilot.share_path(key).is_file()
     monkeypatch.setattr(pilot, "_SHARES", collections.OrderedDict())
     assert crop.integrator().pilot_sky_share(crop, 4) == whole
+
+
+def test_the_pilot_does_not_depend_on_earlier_renders():
+    """The pilot's renders stratify each pixel's samples as a render of one pass at its
+    spp does, whatever the sensor's sampler was last set to: the same share before and
+    after a render at another sample count (the built-in scenes' stratified sampler)."""
+    scene = cloth_under_sky(ROUGH, 40.0, 0.0, sampler="multijitter")
+    integrator = scene.integrator()
+    before = integrator.measure_sky_share(scene, 4)
+    mi.render(scene, spp=2, seed=1)
+    assert integrator.measure_sky_share(scene, 4) == before

@@ -181,6 +181,8 @@ def camera_rays(sensor, x: np.ndarray, y: np.ndarray, spp: int, seed: int):
     film = sensor.film()
     sampler = sensor.sampler().clone()
     sampler.set_sample_count(spp)
+    # (As a render of one pass sets it: a previous render's value would change the strata.)
+    sampler.set_samples_per_wavefront(spp)
     sampler.seed(seed, len(x) * spp)
     index = dr.arange(mi.UInt32, len(x) * spp) // spp
     pixel = mi.Point2f(dr.gather(mi.Float, mi.Float(np.asarray(x, np.float32)), index),
