@@ -16,18 +16,36 @@ writes that were killed half-way); anything else in the directory is left alone.
 """
 from __future__ import annotations
 
+import hashlib
 import os
 import re
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
-__all__ = ["CacheEntry", "cache_entries", "default_cache_dir", "mark_used", "remove_entries"]
+__all__ = ["CacheEntry", "cache_entries", "default_cache_dir", "mark_used", "remove_entries", "source_fingerprint"]
 
 
 def default_cache_dir() -> Path:
     """$MSCLOTH_CACHE, else ~/.cache/mscloth."""
     env = os.environ.get("MSCLOTH_CACHE")
     return Path(env) if env else Path.home() / ".cache" / "mscloth"
+
+
+@lru_cache(maxsize=8)
+def source_fingerprint(*parts: str) -> str:
+    """SHA-256 of mscloth's sources ``parts`` (paths in the package: a directory stands for
+    its ``*.py`` files), by name and content: what a cached result was computed by."""
+    root = Path(__file__).resolve().parent
+    paths = []
+    for part in parts:
+        path = root / part
+        paths += path.glob("*.py") if path.is_dir() else [path]
+    hs = hashlib.sha256()
+    for path in sorted(paths):
+        hs.update(path.name.encode())
+        hs.update(path.read_bytes())
+    return hs.hexdigest()
 
 
 # (kind, sub-directory, entry name pattern, file suffixes). A table's .npz and .json make

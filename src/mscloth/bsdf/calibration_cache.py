@@ -14,35 +14,22 @@ from __future__ import annotations
 import hashlib
 import json
 import warnings
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
 from ..atomic import atomic_write
-from ..cache import default_cache_dir, mark_used
+from ..cache import default_cache_dir, mark_used, source_fingerprint
 
 FORMAT = "mscloth-calibration/1"
 SUBDIR = "calibration"
-
-
-@lru_cache(maxsize=1)
-def _code_fingerprint() -> str:
-    """SHA-256 of the sources whose behaviour a calibration measures."""
-    root = Path(__file__).resolve().parents[1]
-    hs = hashlib.sha256()
-    for path in sorted([*root.joinpath("bsdf").glob("*.py"), *root.joinpath("scattering").glob("*.py"),
-                        root / "jit_arrays.py"]):
-        hs.update(path.name.encode())
-        hs.update(path.read_bytes())
-    return hs.hexdigest()
 
 
 def calibration_key(maps_key: str, inputs: dict) -> str:
     """The cache key of a calibration: ``maps_key`` (a hash of the maps) and ``inputs``
     (JSON-able: parameters, build inputs, uv scales, tuning constants, variant)."""
     hs = hashlib.sha256()
-    hs.update(f"{FORMAT}\n{_code_fingerprint()}\n{maps_key}\n".encode())
+    hs.update(f"{FORMAT}\n{source_fingerprint('bsdf', 'scattering', 'jit_arrays.py')}\n{maps_key}\n".encode())
     hs.update(json.dumps(inputs, sort_keys=True).encode())
     return hs.hexdigest()
 

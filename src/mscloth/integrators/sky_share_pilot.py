@@ -32,7 +32,6 @@ import re
 import warnings
 from collections import OrderedDict
 from dataclasses import asdict, dataclass
-from functools import lru_cache
 from pathlib import Path
 
 import drjit as dr
@@ -95,29 +94,17 @@ FORMAT = "mscloth-sky-share/1"
 SUBDIR = "sky_shares"
 
 
-@lru_cache(maxsize=1)
-def _code_fingerprint() -> str:
-    """SHA-256 of the sources whose behaviour a share measures (BSDFs, their scattering,
-    the integrators)."""
-    root = Path(__file__).resolve().parents[1]
-    hs = hashlib.sha256()
-    for path in sorted([*root.joinpath("bsdf").glob("*.py"), *root.joinpath("scattering").glob("*.py"),
-                        *root.joinpath("integrators").glob("*.py")]):
-        hs.update(path.name.encode())
-        hs.update(path.read_bytes())
-    return hs.hexdigest()
-
-
 def share_path(key: tuple, cache_dir=None) -> Path:
     """Where the share of ``key`` is stored: its name hashes the key, the variant, the
     code and the settings that experiments change at run time."""
     from ..bsdf import sky_albedo
-    from ..cache import default_cache_dir
+    from ..cache import default_cache_dir, source_fingerprint
 
     settings = (PILOT_PIXELS, PILOT_SEED, MIN_VARIANCE_CUT, DARK_FLOOR, PILOT_MAX_MIB, PILOT_MARGIN,
                 sky_albedo.SAMPLES, sky_albedo.OUTER_INSETS, sky_albedo.NODES_PER_BIN,
                 sky_albedo.OUTER_BIN_NODES, sky_albedo.SHAPE_STEPS)
-    hs = hashlib.sha256(f"{FORMAT}\n{_code_fingerprint()}\n{mi.variant()}\n{settings}\n{key[1]}\n".encode())
+    code = source_fingerprint("bsdf", "scattering", "integrators")
+    hs = hashlib.sha256(f"{FORMAT}\n{code}\n{mi.variant()}\n{settings}\n{key[1]}\n".encode())
     hs.update(key[0].encode())
     root = default_cache_dir() if cache_dir is None else Path(cache_dir)
     return root / SUBDIR / f"{hs.hexdigest()}.json"
@@ -156,12 +143,12 @@ def keep_share(key: tuple, pilot: SkySharePilot, store: bool = True) -> SkyShare
     that cannot be written only costs a pilot next time); returns it."""
     from ..atomic import atomic_write
 
-    path = share_path(key)
-    try:
-        if store:
+    if store:
+        path = share_path(key)
+        try:
             atomic_write(path, lambda f: f.write(json.dumps(asdict(pilot)).encode()))
-    except OSError as exc:
-        warnings.warn(f"mscloth: cannot store sky share {path}: {exc}", RuntimeWarning, stacklevel=2)
+        except OSError as exc:
+            warnings.warn(f"mscloth: cannot store sky share {path}: {exc}", RuntimeWarning, stacklevel=2)
     return _keep(key, pilot)
 
 
