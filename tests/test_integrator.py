@@ -838,9 +838,20 @@ def test_pixel_centre_offset_recovers_the_film_position():
     assert np.all(np.array(ok))
     np.testing.assert_allclose(np.array(ox), fx - 0.5, atol=2e-4)
     np.testing.assert_allclose(np.array(oy), fy - 0.5, atol=2e-4)
-    # Outside the frustum: not valid.
+    # Behind the camera: not valid.
     _, _, ok = fp.pixel_centre_offset(sensor, ray.o - ray.d)
     assert not np.any(np.array(ok))
+    # A crop window's camera centres points of the frame outside its window as the whole
+    # frame's does (the sky-share pilot renders pixels of the whole frame in a crop).
+    cropped = mi.load_dict({"type": "perspective", "fov": 50,
+                            "to_world": mi.ScalarTransform4f().look_at(origin=[0.3, 1, 4], target=[0, 0.5, 0],
+                                                                       up=[0, 1, 0]),
+                            "film": {"type": "hdrfilm", "width": 16, "height": 9, "rfilter": {"type": "box"},
+                                     "crop_offset_x": 5, "crop_offset_y": 3, "crop_width": 4, "crop_height": 2}})
+    cx, cy, ok = fp.pixel_centre_offset(cropped, p)
+    assert np.all(np.array(ok))
+    np.testing.assert_allclose(np.array(cx), fx - 0.5, atol=2e-4)
+    np.testing.assert_allclose(np.array(cy), fy - 0.5, atol=2e-4)
 
 
 def test_orthographic_centre_offset_recovers_the_film_position():

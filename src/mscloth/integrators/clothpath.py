@@ -515,13 +515,10 @@ def make_clothpath_class():
             key = sky_share_pilot.scene_key(scene, spp)
             pilot = sky_share_pilot.kept_share(key)
             if pilot is None:
-                # A crop's pilot is not the frame's (performance log L63: denim's 0.27 cut
-                # read 0.12-0.21 on crops): kept in this process only, the frame's stored
-                # share preferred by every later one. (Nor is "no table here" stored.)
-                film = scene.sensors()[0].film()
-                whole = tuple(film.crop_size()) == tuple(film.size()) and not any(film.crop_offset())
+                # (A crop's pilot renders pixels of the whole frame: it is the frame's. "No
+                # table here" is not stored.)
                 pilot = self.decide_sky_share(scene, spp)
-                pilot = sky_share_pilot.keep_share(key, pilot, store=whole and pilot.pixels > 0)
+                pilot = sky_share_pilot.keep_share(key, pilot, store=pilot.pixels > 0)
             return pilot
 
         def decide_sky_share(self, scene, spp: int) -> sky_share_pilot.SkySharePilot:

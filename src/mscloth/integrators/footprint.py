@@ -307,13 +307,18 @@ def pixel_centre_offset(sensor, p, active=True):
     which ``sensor`` (a perspective camera) sees the point ``p`` from its pixel's centre.
 
     Uses the camera's own projection (``Sensor.sample_direction`` returns raster
-    coordinates in ``uv``); ``valid`` is false outside the frustum."""
+    coordinates of its crop window in ``uv``, also beyond the window, where its pdf is 0: a
+    point of the frame outside a crop, as the sky-share pilot renders, is centred as in the
+    whole frame); ``valid`` is false behind the camera."""
     it = dr.zeros(mi.Interaction3f, dr.width(p))
     it.p = p
     ds, _ = sensor.sample_direction(it, mi.Point2f(0.5, 0.5), active)
     fx = ds.uv.x - dr.floor(ds.uv.x)
     fy = ds.uv.y - dr.floor(ds.uv.y)
-    valid = active & (ds.pdf > 0.0) & dr.isfinite(ds.uv.x) & dr.isfinite(ds.uv.y)
+    to_world = sensor.world_transform()
+    forward = to_world @ mi.Vector3f(0.0, 0.0, 1.0)
+    in_front = dr.dot(p - mi.Point3f(to_world.translation()), forward) > 0.0
+    valid = active & in_front & dr.isfinite(ds.uv.x) & dr.isfinite(ds.uv.y)
     return fx - 0.5, fy - 0.5, valid
 
 

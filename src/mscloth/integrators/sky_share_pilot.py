@@ -9,14 +9,17 @@ plane), less where a floor or a fold hides part of it (the floor's light varies 
 direction, not as the sky's). What c* takes off a pixel's variance, 1 - Var(F + c* T) /
 Var(F), is weighed against what reading the table costs (a frame 16-37% longer,
 performance log L60): below ``MIN_VARIANCE_CUT`` (a sun that outshines the sky, cloth whose
-sampled weights barely vary) the share is 0 and no table is read.
+sampled weights barely vary) the share is 0 and no table is read. The cut is the one of the
+pixels the share changes: those where a sample read a table (a floor's or the sky's pixels
+add noise the share cannot touch, and would dilute it by how much of the frame they fill).
 
 The pilot renders ``PILOT_PIXELS`` random pixels of the frame with the render's own sampler
 and sample count, three times with independent seeds: the noise that counts is the pixel
 estimate's, stratification included, not how the image varies across the frame, so the
 statistics come from two renders' differences (E[(x1 - x2)(y1 - y2)] / 2 = Cov(x, y)); each
-pixel weighs by the inverse square of its value in the third (relative error, as ``make
-bench`` measures it, without tying the weight to the noise it weighs).
+pixel weighs by 1 / (M^2 + ``RELMSE_EPS``), M its value in the third render: its relative
+error as ``make bench`` measures it (``mscloth.evaluation.metrics``), without tying the weight
+to the noise it weighs.
 
 The pilot reads small tables of A (``PILOT_MAX_MIB``, cells a few times coarser): the share
 comes from noise within pixels, which a cell's mean barely changes, so a scene that takes
@@ -43,12 +46,12 @@ import numpy as np
 PILOT_PIXELS = 8192
 #: Its seeds (a scene gets the same share on every render).
 PILOT_SEED = 7_919
-#: The least cut in a pixel's relative variance for which the table is read. Its reads make
-#: a frame 16-37% longer, so it pays from a cut of p / (1 + p) = 0.14-0.27 of the noise
-#: make bench measures; the pilot's cuts run lower than make bench's (plane at c = 1/2:
-#: 0.61 against 0.71). On the built-in scenes at 16 spp (L61): sphere 0.08 and satin-plane
-#: 0.04 stay off; drape 0.13, swatch 0.16, denim 0.18, satin 0.25 and plane 0.82 take their share.
-MIN_VARIANCE_CUT = 0.12
+#: The least cut in the relative variance of the pixels that read a table for which the
+#: table is read. Its reads make a frame 16-37% longer (p), so it pays from a cut of
+#: p / (1 + p) = 0.14-0.27; the satin plane's share lost at a make bench cut of 0.10-0.21
+#: (p = 0.35). The built-in scenes at 16 spp (performance log L64): satin-plane 0.12 and
+#: the sphere stay off; swatch 0.19, drape 0.25, satin 0.32, denim 0.38, plane 0.95 take it.
+MIN_VARIANCE_CUT = 0.16
 #: A cut this close under ``MIN_VARIANCE_CUT`` on the small tables is measured again on the
 #: full ones (small tables' cuts ran from 0.017 lower to 0.095 higher on the built-in
 #: scenes, L63: the drape 0.113 against 0.130).
@@ -56,9 +59,10 @@ PILOT_MARGIN = 0.03
 #: The size of the pilot's tables of A (MiB; the full ones' ``sky_albedo.MAX_MIB``): cells
 #: 32 times larger in area, built in a few hundred ms.
 PILOT_MAX_MIB = 4.0
-#: Pixels darker than this fraction of the pilot's mean weigh as if this bright (a black
-#: pixel's relative error is not defined).
-DARK_FLOOR = 0.05
+#: The pixels' weight is 1 / (M^2 + RELMSE_EPS), as in make bench's relMSE
+#: (``mscloth.evaluation.metrics.RELMSE_EPS``, which a test keeps equal): a dark pixel's
+#: error counts as absolute, not as a huge relative one.
+RELMSE_EPS = 1e-2
 
 
 @dataclass(frozen=True)
@@ -100,7 +104,7 @@ def share_path(key: tuple, cache_dir=None) -> Path:
     from ..bsdf import sky_albedo
     from ..cache import default_cache_dir, source_fingerprint
 
-    settings = (PILOT_PIXELS, PILOT_SEED, MIN_VARIANCE_CUT, DARK_FLOOR, PILOT_MAX_MIB, PILOT_MARGIN,
+    settings = (PILOT_PIXELS, PILOT_SEED, MIN_VARIANCE_CUT, RELMSE_EPS, PILOT_MAX_MIB, PILOT_MARGIN,
                 sky_albedo.SAMPLES, sky_albedo.OUTER_INSETS, sky_albedo.NODES_PER_BIN,
                 sky_albedo.OUTER_BIN_NODES, sky_albedo.SHAPE_STEPS)
     code = source_fingerprint("bsdf", "scattering", "integrators")
@@ -185,14 +189,16 @@ def choose_share(F, T, M, min_cut: float = MIN_VARIANCE_CUT) -> SkySharePilot:
     """The share from the pilot's pixel estimates (luminance): ``F`` (2, pixels) two
     independent renders without the control variate, ``T`` (2, pixels) its mean term at
     c = 1 in the same renders, ``M`` (pixels) a third render, which weighs each pixel by
-    1 / M^2. Pixels that are not finite in any of them are left out."""
+    1 / (M^2 + RELMSE_EPS). Pixels that are not finite in any of them are left out, and
+    those whose T is 0 in both renders (no sample read a table: the share does not change
+    them)."""
     F, T, M = (np.asarray(a, dtype=np.float64) for a in (F, T, M))
     df, dt = F[0] - F[1], T[0] - T[1]
-    ok = np.isfinite(df) & np.isfinite(dt) & np.isfinite(M)
+    ok = np.isfinite(df) & np.isfinite(dt) & np.isfinite(M) & ((T[0] != 0.0) | (T[1] != 0.0))
     df, dt, M = df[ok], dt[ok], M[ok]
     if not df.size:
         return SkySharePilot(0.0, 0.0, 0.0, 0)
-    weight = 1.0 / np.maximum(M, DARK_FLOOR * max(float(np.mean(np.abs(M))), 1e-30)) ** 2
+    weight = 1.0 / (M * M + RELMSE_EPS)
     var_f, var_t, cov = (float(np.sum(weight * a * b)) for a, b in ((df, df), (dt, dt), (df, dt)))
     if not (var_t > 0.0 and var_f > 0.0):
         return SkySharePilot(0.0, 0.0, 0.0, int(df.size))
