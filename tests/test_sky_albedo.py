@@ -609,3 +609,31 @@ def test_the_pilot_does_not_depend_on_earlier_renders():
     before = integrator.measure_sky_share(scene, 4)
     mi.render(scene, spp=2, seed=1)
     assert integrator.measure_sky_share(scene, 4) == before
+
+
+def test_the_pilot_renders_at_the_count_the_sampler_takes(monkeypatch, tmp_path):
+    """A stratified sampler rounds a render's spp up to a square (8 -> 9): the pilot runs
+    once, before the trace, at the count the render takes (it failed at the asked count,
+    which the sampler's samples per wavefront cannot divide), and keeps its share by it."""
+    import collections
+
+    from mscloth.integrators import clothpath
+    from mscloth.integrators import sky_share_pilot as pilot
+
+    monkeypatch.setenv("MSCLOTH_CACHE", str(tmp_path))
+    monkeypatch.setattr(clothpath, "SKY_TABLE_LANES", 16 * 16 * 4)
+    monkeypatch.setattr(pilot, "_SHARES", collections.OrderedDict())
+    scene = cloth_under_sky(ROUGH, 40.0, None, sampler="stratified")
+    assert pilot.render_sample_count(scene.sensors()[0], 8) == 9
+    integrator = scene.integrator()
+    counts = []
+    real = integrator.measure_sky_share
+
+    def measure(scene, spp, *args):
+        counts.append(spp)
+        return real(scene, spp, *args)
+
+    monkeypatch.setattr(integrator, "measure_sky_share", measure)
+    image = np.asarray(mi.render(scene, spp=8, seed=2))
+    assert np.all(np.isfinite(image))
+    assert counts == [9] and pilot.kept_share(pilot.scene_key(scene, 9)) is not None

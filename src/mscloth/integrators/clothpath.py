@@ -464,7 +464,8 @@ def make_clothpath_class():
             # ``sample`` its kernels would evaluate the camera rays traced so far, and the
             # render's kernel would differ (and miss Dr.Jit's cache) with the share stored.
             sensor_obj = scene.sensors()[sensor] if isinstance(sensor, int) else sensor
-            count = spp if spp else sensor_obj.sampler().sample_count()
+            # (The count the render's sampler takes: ``sample`` sees that one.)
+            count = sky_share_pilot.render_sample_count(sensor_obj, spp if spp else sensor_obj.sampler().sample_count())
             crop = sensor_obj.film().crop_size()
             if self.sky_share is None and SKY_TABLE_SHARE is None and dr.is_jit_v(mi.Float) \
                     and frame_lanes(scene, int(crop[0]) * int(crop[1]) * count) >= SKY_TABLE_LANES:

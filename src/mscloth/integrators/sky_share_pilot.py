@@ -164,6 +164,15 @@ def pilot_pixels(sensor) -> tuple[np.ndarray, np.ndarray]:
     return rng.integers(0, w, PILOT_PIXELS), rng.integers(0, h, PILOT_PIXELS)
 
 
+def render_sample_count(sensor, spp: int) -> int:
+    """The samples per pixel a render asked for ``spp`` takes with ``sensor``'s sampler (a
+    stratified sampler rounds up to a square: 128 -> 144), which the pilot renders with
+    and keeps its share by."""
+    sampler = sensor.sampler().clone()
+    sampler.set_sample_count(int(spp))
+    return int(sampler.sample_count())
+
+
 def camera_rays(sensor, x: np.ndarray, y: np.ndarray, spp: int, seed: int):
     """(rays, sampler): ``spp`` camera rays (whole-pixel differentials) through each pixel
     (``x``, ``y``), pixel after pixel, placed by a copy of ``sensor``'s sampler seeded with
@@ -172,6 +181,9 @@ def camera_rays(sensor, x: np.ndarray, y: np.ndarray, spp: int, seed: int):
     film = sensor.film()
     sampler = sensor.sampler().clone()
     sampler.set_sample_count(spp)
+    if sampler.sample_count() != spp:
+        raise ValueError(f"sky share pilot: {spp} spp is not a count the sensor's sampler takes "
+                         f"(it would render {sampler.sample_count()}: see render_sample_count)")
     # (As a render of one pass sets it: a previous render's value would change the strata.)
     sampler.set_samples_per_wavefront(spp)
     sampler.seed(seed, len(x) * spp)
