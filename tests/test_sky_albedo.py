@@ -351,22 +351,31 @@ def test_a_crop_of_the_frame_gets_the_frames_share():
     assert pilot.scene_key(cloth_under_sky(ROUGH, 40.0, None, roof=True), 4) != pilot.scene_key(full, 4)
 
 
-def test_batched_directions_build_the_same_table(monkeypatch):
-    """The build batches directions into launches of about BATCH_LANES lanes; one
-    direction per launch (a batch of one) gives the same table to the bit, with a last
-    batch that is only partly full."""
+def rough_cloth_sampler():
+    """(bsdf, sample): the ROUGH cloth and the fibre-level sampling function its sky table
+    is built from, (weights (3, n), kept) per lane."""
     import drjit as dr
 
     bsdf = mi.load_dict(ROUGH)
-    h, w = bsdf.maps.resolution
     ctx = mi.BSDFContext()
 
     def sample(uv, wi, sample1, sample2):
         si = dr.zeros(mi.SurfaceInteraction3f, dr.width(uv))
         si.uv, si.wi = uv, wi
         bs, weight = bsdf.sample(ctx, si, sample1, sample2)
-        return np.asarray(weight).reshape(3, -1), np.asarray(bs.pdf > 0.0)
+        kept = bs.pdf > 0.0
+        dr.eval(weight, kept)  # (one kernel, as cloth's build evaluates them)
+        return np.asarray(weight).reshape(3, -1), np.asarray(kept)
 
+    return bsdf, sample
+
+
+def test_batched_directions_build_the_same_table(monkeypatch):
+    """The build batches directions into launches of about BATCH_LANES lanes; one
+    direction per launch (a batch of one) gives the same table to the bit, with a last
+    batch that is only partly full."""
+    bsdf, sample = rough_cloth_sampler()
+    h, w = bsdf.maps.resolution
     dv = bsdf.footprint_data.dv
     n_dirs = len(sky_albedo.node_directions(dv))
     bx, by = sky_albedo.cell_blocks(h, w, dv, 0.5)
@@ -385,17 +394,8 @@ def test_table_builds_of_every_size_run_one_kernel(monkeypatch):
     other one costs a compilation on a first picture: 6 of them, 0.9 s, on the sphere)."""
     import drjit as dr
 
-    bsdf = mi.load_dict(ROUGH)
+    bsdf, sample = rough_cloth_sampler()
     h, w = bsdf.maps.resolution
-    ctx = mi.BSDFContext()
-
-    def sample(uv, wi, sample1, sample2):
-        si = dr.zeros(mi.SurfaceInteraction3f, dr.width(uv))
-        si.uv, si.wi = uv, wi
-        _, weight = bsdf.sample(ctx, si, sample1, sample2)
-        dr.eval(weight)
-        return np.zeros((3, dr.width(uv))), np.ones(dr.width(uv), bool)
-
     dv = bsdf.footprint_data.dv
     bx, by = sky_albedo.cell_blocks(h, w, dv, 0.5)
     # Three launches per side of the 0.5 MiB table, the last one short.
