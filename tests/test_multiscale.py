@@ -324,17 +324,20 @@ def test_sat_queries_far_from_the_origin_keep_their_precision():
             np.testing.assert_allclose(np.array(packet), np.array(sats.integral(q3, c)), rtol=1e-6, atol=1e-6)
 
 
-def test_exact_sat_queries_integrate_fractional_boxes_in_packets_and_alone():
+@pytest.mark.parametrize("packet_planes", [False, True])
+def test_exact_sat_queries_integrate_fractional_boxes_in_packets_and_alone(packet_planes):
     """Boxes at exact (fractional) corners, inside a tile and across its edges (periodic):
-    packet reads of four channels, one-channel reads and the float64 integral of the
-    piecewise-constant image agree (the exact corners of shiny cloth's probes)."""
+    packet reads of four channels (from a fixed channel and from one per lane, as the sky
+    albedo table reads its nodes), one-channel reads and the float64 integral of the
+    piecewise-constant image agree (the exact corners of shiny cloth's probes), with
+    channels innermost and by planes of four."""
     from mscloth.bsdf.sat_queries import ResidualSATs
     from mscloth.precompute.summed_area import ResidualSAT, build_sat
 
     rng = np.random.default_rng(11)
     H, W = 24, 40
     img = rng.random((8, H, W)) ** 3 * 5.0
-    sats = ResidualSATs(*build_sat(img))
+    sats = ResidualSATs(*build_sat(img), packet_planes=packet_planes)
     reference = ResidualSAT.build(img.astype(np.float64))
     n = 64
     x0 = rng.uniform(-10.0, 70.0, n)
@@ -349,6 +352,10 @@ def test_exact_sat_queries_integrate_fractional_boxes_in_packets_and_alone():
         single = np.array(sats.integral(q, 4 + j))
         np.testing.assert_allclose(packet, single, rtol=1e-5, atol=1e-4)
         np.testing.assert_allclose(packet, want[:, 4 + j], rtol=1e-4, atol=2e-3)
+    first = np.where(np.arange(n) % 3 == 0, 0, 4).astype(np.uint32)
+    per_lane = [np.array(v) for v in sats.integrals(q, mi.UInt32(first), 4, aligned=True)]
+    for j, packet in enumerate(per_lane):
+        np.testing.assert_allclose(packet, want[np.arange(n), first + j], rtol=1e-4, atol=2e-3)
 
 
 # ---------------------------------------------------------------- sheared footprints (probes)

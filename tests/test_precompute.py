@@ -1009,21 +1009,23 @@ def test_lookup_tables_are_64_byte_aligned_so_packet_reads_stay_packets():
                                   raw[1:][np.array([0, 8, 96])[:, None] + np.arange(8)])
 
 
-@pytest.mark.parametrize("channel_major", [False, True])
-def test_jit_sat_queries_match_brute_force_on_wrapping_rectangles(channel_major):
+@pytest.mark.parametrize("layout", ["channel minor", "channel major", "packet planes"])
+def test_jit_sat_queries_match_brute_force_on_wrapping_rectangles(layout):
     """The BSDF's O(1) queries (bsdf/sat_queries.py) against float64 summation over the same
     texels: exact fractional corners (bilinear reads) and corners rounded to whole texels
     (packets of four channels), for rectangles inside one tile and rectangles wrapping up to
     3.5 tiles, anywhere (negative coordinates too), mixed in one packet of lanes, so the
     reads of the last row and column that only wrapping corners need are skipped in none
-    of the lanes that need them. Both layouts: channels innermost (the scalar tables, read
-    in packets) and one channel's plane whole (the full directional table)."""
+    of the lanes that need them. Every layout: channels innermost (the scalar tables, read
+    in packets), one channel's plane whole (the full directional table) and one packet of
+    four channels' plane whole (the sky albedo table), two packets each."""
     from mscloth.bsdf.sat_queries import ResidualSATs
 
     rng = np.random.default_rng(17)
-    C, H, W = 4, 24, 40
+    C, H, W = 8, 24, 40
     img = rng.random((C, H, W)) ** 3 * 5.0
-    sats = ResidualSATs(*build_sat(img), channel_major=channel_major)
+    sats = ResidualSATs(*build_sat(img), channel_major=layout == "channel major",
+                        packet_planes=layout == "packet planes")
     n = 400
     x0 = rng.uniform(-3.0 * W, 3.0 * W, n)
     y0 = rng.uniform(-3.0 * H, 3.0 * H, n)

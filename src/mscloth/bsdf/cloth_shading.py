@@ -124,7 +124,12 @@ class ClothShading:
             exact_wos = self._exact_wos(si, fr, wos, exact_wos)
             hashed, fp = self._hashed_footprint(si, fr, exact_wos)
             if sky_albedo is not False:
-                albedo = self.probe_albedo(fr, fp, hashed, mi.Bool(active) & sky_albedo)
+                want = mi.Bool(active) & sky_albedo
+                if isinstance(sky_albedo, bool) or not dr.is_jit_v(mi.Float) or self._gradients(si, fr, wos):
+                    albedo = self.probe_albedo(fr, fp, hashed, want)
+                else:  # (only camera rays' first hits want it: packets of later vertices skip the reads)
+                    albedo = branch(want, (si, wos, samples), true_fn=lambda: self.probe_albedo(fr, fp, hashed, want),
+                                    false_fn=lambda: (mi.Color3f(0.0), mi.Float(0.0)), label="cloth_sky_albedo")
             values, pdfs, record = branch(
                 fp.use, (si, wos, samples),
                 true_fn=lambda: self._footprint_branch(si, fr, enabled, wos, samples, active, fp, hashed, mis,

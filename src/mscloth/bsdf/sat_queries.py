@@ -100,13 +100,17 @@ class ResidualSATs:
     cache misses instead of one per channel. ``channel_major``: one channel's plane whole,
     ``data[c * (H + 1) * (W + 1) + y * (W + 1) + x]``, for the full directional table,
     of which a footprint reads four bins per corner, the same four across a region under
-    one sun (docs/decisions.md, "The full directional SAT by planes").
+    one sun (docs/decisions.md, "The full directional SAT by planes"). ``packet_planes``:
+    the planes of a packet of four channels whole, ``data[((c // 4) * (H + 1) * (W + 1) +
+    y * (W + 1) + x) * 4 + c % 4]``, for tables read in packets of four of which a region
+    reads the same few (the sky albedo table: four direction nodes at a camera ray's wi).
 
     Traced code reads the tile's size as opaque values (:class:`.jit_arrays.Extent`), so
     that tables of different tile sizes trace the same code.
     """
 
-    def __init__(self, sat: np.ndarray, mean: np.ndarray, channel_major: bool = False):
+    def __init__(self, sat: np.ndarray, mean: np.ndarray, channel_major: bool = False,
+                 packet_planes: bool = False):
         sat = np.asarray(sat, dtype=np.float32)
         if sat.ndim == 2:
             sat = sat[None]
@@ -114,8 +118,25 @@ class ResidualSATs:
         self.H, self.W = rows - 1, cols - 1
         self.width, self.height = Extent(self.W), Extent(self.H)
         self.channel_major = channel_major
+        self.packet_planes = packet_planes
         C = self.channels
-        if channel_major:
+        # A packet's step from one texel corner to the next (x), and how far apart the
+        # packets of the data, the last column and the last row lie per channel of the
+        # first (1: together at a corner; a plane each: packet_planes).
+        packet_step, planes = C, (1, 1, 1)
+        if packet_planes:
+            if channel_major or C % 4:
+                raise ValueError(f"ResidualSATs: packet planes need whole packets of four channels, got {C}")
+
+            def by_packets(a):  # (C, ...) -> (C / 4, ..., 4): a packet's four channels last
+                return np.moveaxis(a.reshape((C // 4, 4) + a.shape[1:]), 1, -1)
+            self.data = flat_array(by_packets(sat))
+            self.last_col = flat_array(by_packets(sat[:, :, self.W]))
+            self.last_row = flat_array(by_packets(sat[:, self.H, :]))
+            # (Single channels: integral() adds c % 4 to these.)
+            strides = (rows * cols, 4, (self.W + 1) * 4, self.H + 1, 4, self.W + 1, 4)
+            packet_step, planes = 4, (rows * cols, rows, cols)
+        elif channel_major:
             # data[c * (H + 1) * (W + 1) + y * (W + 1) + x]: one channel's plane whole.
             self.data = flat_array(sat)
             self.last_col = flat_array(sat[:, :, self.W])
@@ -131,6 +152,9 @@ class ResidualSATs:
         # Index strides: data (channel, x, y); last column (channel, y); last row (channel, x).
         (self.step_c, self.step_x, self.row_stride, self.col_c, self.col_y,
          self.row_c, self.row_x) = (opaque(mi.UInt32, v) for v in strides)
+        self.packet_step = opaque(mi.UInt32, packet_step)
+        self.packet_row = opaque(mi.UInt32, (self.W + 1) * packet_step)
+        self.data_plane, self.col_plane, self.row_plane = (opaque(mi.UInt32, v) for v in planes)
         self.mean = flat_array(np.asarray(mean, dtype=np.float64))
         self.total = flat_array(sat[:, self.H, self.W])  # ~0 by construction
 
@@ -198,6 +222,9 @@ class ResidualSATs:
         C = self.channels
         if not (n % 4 == 0 and (aligned or first % 4 == 0) and C % 4 == 0) or self.channel_major:
             return [self.integral(q, first + j) for j in range(n)]
+        if self.packet_planes and n > 4:  # (each packet of four its own plane)
+            return [v for k in range(0, n, 4) for v in self.integrals(q, first + k, 4, aligned=True)]
+        step = self.packet_step
         totals = gather_block(self.total, mi.UInt32(first), n)
         means = gather_block(self.mean, mi.UInt32(first), n)
 
@@ -209,16 +236,16 @@ class ResidualSATs:
             for _, c in q.corners:
                 col, row = self._edge_terms(c)
                 if col:
-                    at = c.iy * C + first
+                    at = c.iy * step + first * self.col_plane
                     block = gather_block(self.last_col, at, n, c.use_col)
                     if not q.on_grid:
-                        block = lerp_blocks(block, gather_block(self.last_col, at + C, n, c.use_col), c.fy)
+                        block = lerp_blocks(block, gather_block(self.last_col, at + step, n, c.use_col), c.fy)
                     values += block
                 if row:
-                    at = c.ix * C + first
+                    at = c.ix * step + first * self.row_plane
                     block = gather_block(self.last_row, at, n, c.use_row)
                     if not q.on_grid:
-                        block = lerp_blocks(block, gather_block(self.last_row, at + C, n, c.use_row), c.fx)
+                        block = lerp_blocks(block, gather_block(self.last_row, at + step, n, c.use_row), c.fx)
                     values += block
             return values
 
@@ -226,12 +253,12 @@ class ResidualSATs:
         zero = [0.0] * n
         out = [mi.Float(0.0) for _ in range(n)]
         for sign, c in q.corners:
-            at = c.cell * C + first
+            at = c.cell * step + first * self.data_plane
             inner = gather_block(self.data, at, n)
             if not q.on_grid:
-                below = gather_block(self.data, at + self.row_stride, n)
-                inner = lerp_blocks(lerp_blocks(inner, gather_block(self.data, at + C, n), c.fx),
-                                    lerp_blocks(below, gather_block(self.data, at + self.row_stride + C, n), c.fx),
+                below = gather_block(self.data, at + self.packet_row, n)
+                inner = lerp_blocks(lerp_blocks(inner, gather_block(self.data, at + step, n), c.fx),
+                                    lerp_blocks(below, gather_block(self.data, at + self.packet_row + step, n), c.fx),
                                     c.fy)
             has_col, has_row = self._edge_terms(c)
             col = [next(edges) for _ in range(n)] if has_col else zero
@@ -249,13 +276,16 @@ class ResidualSATs:
         row_stride, step_x = self.row_stride, self.step_x
         channel = mi.UInt32(channel)
         total = gather(self.total, channel)
+        # (packet_planes: the strides place the channel's packet; c % 4 within it.)
+        within = (channel & 3) if self.packet_planes else 0
+        channel = (channel - within) if self.packet_planes else channel
 
         def read_edges():  # per corner: the last-column and last-row values it can need
             values = []
             for _, c in q.corners:
                 has_col, has_row = self._edge_terms(c)
-                col = c.iy * self.col_y + channel * self.col_c
-                row = c.ix * self.row_x + channel * self.row_c
+                col = c.iy * self.col_y + channel * self.col_c + within
+                row = c.ix * self.row_x + channel * self.row_c + within
                 if q.on_grid:  # fx = fy = 0 up to rounding: the corner's own values
                     values += [gather(self.last_col, col, c.use_col)] if has_col else []
                     values += [gather(self.last_row, row, c.use_row)] if has_row else []
@@ -272,7 +302,7 @@ class ResidualSATs:
             has_col, has_row = self._edge_terms(c)
             col = next(edges) if has_col else 0.0
             row = next(edges) if has_row else 0.0
-            i00 = c.ix * step_x + c.iy * row_stride + channel * self.step_c
+            i00 = c.ix * step_x + c.iy * row_stride + channel * self.step_c + within
             if q.on_grid:
                 inner = gather(self.data, i00)
             else:
@@ -282,7 +312,7 @@ class ResidualSATs:
                 v11 = gather(self.data, i00 + row_stride + step_x)
                 inner = dr.lerp(dr.lerp(v00, v01, c.fx), dr.lerp(v10, v11, c.fx), c.fy)
             residual += sign * self._periodic(c, total, col, row, inner)
-        return residual + gather(self.mean, channel) * q.area
+        return residual + gather(self.mean, channel + within) * q.area
 
     @staticmethod
     def _periodic(c, total, col, row, inner):
