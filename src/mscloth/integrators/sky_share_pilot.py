@@ -7,8 +7,8 @@ least noise is c* = -Cov(F, T) / Var(T), F the pixel's estimate without it and T
 mean of t over the pixel's samples: 1 where every sampled direction sees the sky (an open
 plane), less where a floor or a fold hides part of it (the floor's light varies with the
 direction, not as the sky's). What c* takes off a pixel's variance, 1 - Var(F + c* T) /
-Var(F), is weighed against what reading the table costs (a frame 16-37% longer,
-performance log L60): below ``MIN_VARIANCE_CUT`` (a sun that outshines the sky, cloth whose
+Var(F), is weighed against what reading the table costs (a frame 6-18% longer,
+performance log L65): below ``MIN_VARIANCE_CUT`` (a sun that outshines the sky, cloth whose
 sampled weights barely vary) the share is 0 and no table is read. The cut is the one of the
 pixels the share changes: those where a sample read a table (a floor's or the sky's pixels
 add noise the share cannot touch, and would dilute it by how much of the frame they fill).
@@ -47,10 +47,13 @@ PILOT_PIXELS = 8192
 #: Its seeds (a scene gets the same share on every render).
 PILOT_SEED = 7_919
 #: The least cut in the relative variance of the pixels that read a table for which the
-#: table is read. Its reads make a frame 16-37% longer (p), so it pays from a cut of
-#: p / (1 + p) = 0.14-0.27; the satin plane's share lost at a make bench cut of 0.10-0.21
-#: (p = 0.35). The built-in scenes at 16 spp (performance log L64): satin-plane 0.12 and
-#: the sphere stay off; swatch 0.19, drape 0.25, satin 0.32, denim 0.38, plane 0.95 take it.
+#: table is read. Its reads make a frame 6-18% longer (p; 16-37% before the table was laid
+#: out by planes and skipped after first hits, L65), so it pays from a cut of p / (1 + p) =
+#: 0.06-0.15; the satin plane's share lost at a make bench cut of 0.10-0.21 (p = 0.35 then).
+#: Kept above that: the pilot's cut spreads by 0.02-0.05 between seeds, and the scenes it
+#: keeps off (satin-plane 0.08-0.12, the sphere 0.08-0.13) would gain a few per cent at
+#: most. The built-in scenes at 16 spp (performance log L64): swatch 0.19, drape 0.25, satin
+#: 0.32, denim 0.38, plane 0.95 take it.
 MIN_VARIANCE_CUT = 0.16
 #: A cut this close under ``MIN_VARIANCE_CUT`` on the small tables is measured again on the
 #: full ones (small tables' cuts ran from 0.017 lower to 0.095 higher on the built-in
