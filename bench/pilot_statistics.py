@@ -8,10 +8,13 @@ would cut, held out.
   pixels of the whole frame), their relative differences and the crops' shares.
 * ``tiles``: 16384 pixels rendered six times; c* fitted per screen tile on one pair of
   renders, its variance cut measured on the other two pairs (with the pilot's weights).
+* ``regions``: the same with one c* per make bench region (near, middle, far: on the
+  built-in scenes, one cloth each), and each region's own cut at its c* and at the frame's.
 
     .venv/bin/python bench/pilot_statistics.py seeds satin-plane swatch drape sphere denim satin
     .venv/bin/python bench/pilot_statistics.py crop denim
     .venv/bin/python bench/pilot_statistics.py tiles sphere
+    .venv/bin/python bench/pilot_statistics.py regions sphere
 """
 from __future__ import annotations
 
@@ -64,7 +67,7 @@ def crop(name: str, spp: int, res) -> None:
         del scene
 
 
-def tiles(scene, name: str, spp: int, res) -> None:
+def tiles(scene, name: str, spp: int, res, by_region: bool = False) -> None:
     from mscloth.integrators import sky_share_pilot as pilot
 
     rng = np.random.default_rng(3)
@@ -78,6 +81,26 @@ def tiles(scene, name: str, spp: int, res) -> None:
         df, dt = F[i] - F[j], T[i] - T[j]
         return tuple(float(np.sum((weight * a * b)[sel])) for a, b in ((df, df), (dt, dt), (df, dt)))
 
+    if by_region:
+        from mscloth.evaluation.regions import REGIONS, depth_and_cloth, region_masks
+        masks = region_masks(*depth_and_cloth(name, *res))[0]
+        _, vt, cov = sums(0, 1, ok)
+        c_frame = float(np.clip(-cov / vt, 0.0, 1.0)) if vt > 0.0 else 0.0
+        for g in REGIONS:
+            sel = ok & masks[g][y, x]
+            _, vt, cov = sums(0, 1, sel)
+            c = float(np.clip(-cov / vt, 0.0, 1.0)) if vt > 0.0 else 0.0
+            cuts = []
+            for share in (c, c_frame):
+                base = with_share = 0.0
+                for i, j in ((2, 3), (4, 5)):
+                    vf2, vt2, cov2 = sums(i, j, sel)
+                    base += vf2
+                    with_share += vf2 + 2.0 * share * cov2 + share * share * vt2
+                cuts.append(1.0 - with_share / base if base > 0.0 else 0.0)
+            print(f"| {name} | {g} | {int(sel.sum())} | {c:.2f} / {cuts[0]:.3f} | {c_frame:.2f} / {cuts[1]:.3f} |",
+                  flush=True)
+        return
     for size in TILES:
         key = np.zeros_like(x) if size == 0 else (y // size) * 100_000 + x // size
         base = with_share = 0.0
@@ -94,7 +117,7 @@ def tiles(scene, name: str, spp: int, res) -> None:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("what", choices=("seeds", "crop", "tiles"))
+    parser.add_argument("what", choices=("seeds", "crop", "tiles", "regions"))
     parser.add_argument("scenes", nargs="+")
     parser.add_argument("--res", default="320x180")
     parser.add_argument("--spp", type=int, default=16)
@@ -106,13 +129,18 @@ def main(argv=None) -> int:
     print({"seeds": "| scene | cut (c*), seeds 1000-1002 | 1003-1005 | 1006-1008 | 1009-1011 |\n|---|---|---|---|---|",
            "crop": "| scene | window | share | c* | cut | relative difference to the frame: median / 90th / 99th percentile |\n"
                    "|---|---|---|---|---|---|",
-           "tiles": "| scene | tile (pixels) | held-out cut |\n|---|---|---|"}[args.what])
+           "tiles": "| scene | tile (pixels) | held-out cut |\n|---|---|---|",
+           "regions": "| scene | region | pixels | its c* / held-out cut | the frame's c* / held-out cut |\n"
+                      "|---|---|---|---|---|"}[args.what])
     for name in args.scenes:
         if args.what == "crop":
             crop(name, args.spp, res)
             continue
         scene = lit_scene(name, *res, True)
-        (seeds(scene, name, args.spp) if args.what == "seeds" else tiles(scene, name, args.spp, res))
+        if args.what == "seeds":
+            seeds(scene, name, args.spp)
+        else:
+            tiles(scene, name, args.spp, res, by_region=args.what == "regions")
         del scene
     return 0
 
