@@ -13,7 +13,7 @@ import numpy as np
 SCENES = ("sphere", "satin", "denim")
 
 
-def render_all(res=(64, 36), spp=8) -> dict:
+def render_all(res=(64, 36), spp=8, scenes=SCENES) -> dict:
     import mitsuba as mi
 
     import mscloth
@@ -22,7 +22,7 @@ def render_all(res=(64, 36), spp=8) -> dict:
     mscloth.setup_mitsuba("llvm_ad_rgb")
     images = {}
     mscloth.register()
-    for name in SCENES:
+    for name in scenes:
         for multiscale in (True, False):
             scene_dict = builtin.builtin_scene(name, *res)
             builtin.set_cloth_parameters(scene_dict, multiscale=multiscale)
@@ -35,9 +35,12 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out")
     ap.add_argument("--compare", nargs=2)
+    ap.add_argument("--scenes", nargs="+", default=list(SCENES))
+    ap.add_argument("--res", nargs=2, type=int, default=[64, 36])
+    ap.add_argument("--spp", type=int, default=8)
     args = ap.parse_args()
     if args.out:
-        np.savez(args.out, **render_all())
+        np.savez(args.out, **render_all(tuple(args.res), args.spp, args.scenes))
     if args.compare:
         a, b = (np.load(p) for p in args.compare)
         for key in a.files:

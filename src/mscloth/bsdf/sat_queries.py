@@ -152,9 +152,15 @@ class ResidualSATs:
         # Index strides: data (channel, x, y); last column (channel, y); last row (channel, x).
         (self.step_c, self.step_x, self.row_stride, self.col_c, self.col_y,
          self.row_c, self.row_x) = (opaque(mi.UInt32, v) for v in strides)
-        self.packet_step = opaque(mi.UInt32, packet_step)
-        self.packet_row = opaque(mi.UInt32, (self.W + 1) * packet_step)
-        self.data_plane, self.col_plane, self.row_plane = (opaque(mi.UInt32, v) for v in planes)
+        if packet_planes:
+            self.packet_step = opaque(mi.UInt32, packet_step)
+            self.packet_row = opaque(mi.UInt32, (self.W + 1) * packet_step)
+            self.data_plane, self.col_plane, self.row_plane = (opaque(mi.UInt32, v) for v in planes)
+        else:
+            # Literal C and no plane offsets: the footprint's hot reads trace as before the
+            # packet-plane layout existed (no multiply by an opaque 1, a constant step).
+            self.packet_step, self.packet_row = C, self.row_stride
+            self.data_plane = self.col_plane = self.row_plane = None
         self.mean = flat_array(np.asarray(mean, dtype=np.float64))
         self.total = flat_array(sat[:, self.H, self.W])  # ~0 by construction
 
@@ -236,13 +242,13 @@ class ResidualSATs:
             for _, c in q.corners:
                 col, row = self._edge_terms(c)
                 if col:
-                    at = c.iy * step + first * self.col_plane
+                    at = c.iy * step + self._plane(first, self.col_plane)
                     block = gather_block(self.last_col, at, n, c.use_col)
                     if not q.on_grid:
                         block = lerp_blocks(block, gather_block(self.last_col, at + step, n, c.use_col), c.fy)
                     values += block
                 if row:
-                    at = c.ix * step + first * self.row_plane
+                    at = c.ix * step + self._plane(first, self.row_plane)
                     block = gather_block(self.last_row, at, n, c.use_row)
                     if not q.on_grid:
                         block = lerp_blocks(block, gather_block(self.last_row, at + step, n, c.use_row), c.fx)
@@ -253,7 +259,7 @@ class ResidualSATs:
         zero = [0.0] * n
         out = [mi.Float(0.0) for _ in range(n)]
         for sign, c in q.corners:
-            at = c.cell * step + first * self.data_plane
+            at = c.cell * step + self._plane(first, self.data_plane)
             inner = gather_block(self.data, at, n)
             if not q.on_grid:
                 below = gather_block(self.data, at + self.packet_row, n)
@@ -267,6 +273,11 @@ class ResidualSATs:
                 out[j] += sign * self._periodic(c, totals[j], col[j], row[j], inner[j])
         return [o + m * q.area for o, m in zip(out, means)]
 
+    @staticmethod
+    def _plane(first, plane):
+        """Where the packet of channel ``first`` starts (plane ``None``: at the corner)."""
+        return first if plane is None else first * plane
+
     def integral(self, q: RectQuery, channel):
         """Integral of the original values of ``channel`` (int or per-lane UInt32) over the
         rectangle of query ``q`` (made by any table of this tile size; or a
@@ -277,15 +288,20 @@ class ResidualSATs:
         channel = mi.UInt32(channel)
         total = gather(self.total, channel)
         # (packet_planes: the strides place the channel's packet; c % 4 within it.)
-        within = (channel & 3) if self.packet_planes else 0
-        channel = (channel - within) if self.packet_planes else channel
+        within = None
+        if self.packet_planes:
+            within = channel & 3
+            channel = channel - within
+
+        def place(index):  # (packet_planes: c % 4 within the channel's packet)
+            return index if within is None else index + within
 
         def read_edges():  # per corner: the last-column and last-row values it can need
             values = []
             for _, c in q.corners:
                 has_col, has_row = self._edge_terms(c)
-                col = c.iy * self.col_y + channel * self.col_c + within
-                row = c.ix * self.row_x + channel * self.row_c + within
+                col = place(c.iy * self.col_y + channel * self.col_c)
+                row = place(c.ix * self.row_x + channel * self.row_c)
                 if q.on_grid:  # fx = fy = 0 up to rounding: the corner's own values
                     values += [gather(self.last_col, col, c.use_col)] if has_col else []
                     values += [gather(self.last_row, row, c.use_row)] if has_row else []
@@ -302,7 +318,7 @@ class ResidualSATs:
             has_col, has_row = self._edge_terms(c)
             col = next(edges) if has_col else 0.0
             row = next(edges) if has_row else 0.0
-            i00 = c.ix * step_x + c.iy * row_stride + channel * self.step_c + within
+            i00 = place(c.ix * step_x + c.iy * row_stride + channel * self.step_c)
             if q.on_grid:
                 inner = gather(self.data, i00)
             else:
@@ -312,7 +328,7 @@ class ResidualSATs:
                 v11 = gather(self.data, i00 + row_stride + step_x)
                 inner = dr.lerp(dr.lerp(v00, v01, c.fx), dr.lerp(v10, v11, c.fx), c.fy)
             residual += sign * self._periodic(c, total, col, row, inner)
-        return residual + gather(self.mean, channel + within) * q.area
+        return residual + gather(self.mean, place(channel)) * q.area
 
     @staticmethod
     def _periodic(c, total, col, row, inner):
