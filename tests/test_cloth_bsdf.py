@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import mscloth
+from mscloth import validation
 from mscloth.bsdf.footprint_estimator import FootprintEstimator
 from mscloth.bsdf.lobes import GAP, SHEEN
 
@@ -31,11 +32,11 @@ def random_uv(rng, n):
 
 
 def vec(a):
-    return mi.Vector3f(a[:, 0], a[:, 1], a[:, 2])
+    return validation.lanes(mi.Vector3f, a[:, 0], a[:, 1], a[:, 2])
 
 
 def pt2(a):
-    return mi.Point2f(a[:, 0], a[:, 1])
+    return validation.lanes(mi.Point2f, a[:, 0], a[:, 1])
 
 
 def np3(v):
@@ -129,8 +130,8 @@ def check_footprint_reciprocity(bsdf, half_texels):
 
     def footprint_si(w):
         si = make_si(vec(w), uv, n)
-        si.duv_dx = mi.Vector2f(d, 0.0)
-        si.duv_dy = mi.Vector2f(0.0, d)
+        si.duv_dx = validation.constants(mi.Vector2f, n, d, 0.0)
+        si.duv_dy = validation.constants(mi.Vector2f, n, 0.0, d)
         return si
 
     ctx = mi.BSDFContext()
@@ -189,8 +190,8 @@ def test_residual_texels_summed_in_one_loop_equal_their_unrolled_sum(params, mon
     wi, wo = random_directions(rng, n), vec(random_directions(rng, n))
     si = make_si(vec(wi), pt2(random_uv(rng, n)), n)
     d = np.repeat([5.0, 80.0, 2.5 * tile_w, 5.0 * tile_w], n // 4) / tile_w
-    si.duv_dx = mi.Vector2f(mi.Float(d), 0.0)
-    si.duv_dy = mi.Vector2f(mi.Float(0.3 * d), mi.Float(0.8 * d))
+    si.duv_dx = validation.lanes(mi.Vector2f, d, np.zeros_like(d))
+    si.duv_dy = validation.lanes(mi.Vector2f, 0.3 * d, 0.8 * d)
     ctx = mi.BSDFContext()
     looped = bsdf.eval_pdf(ctx, si, wo)
     monkeypatch.setattr(FootprintEstimator, "LOOP_TEXELS", False)

@@ -345,7 +345,8 @@ def _weighted_sample_means(bsdf, si, n, seed, tests):
     sample record with its weight."""
     rng = np.random.default_rng(seed)
     validation.scatter_shading_points(si, rng)
-    bs, w = bsdf.sample(mi.BSDFContext(), si, mi.Float(rng.random(n)), mi.Point2f(rng.random(n), rng.random(n)))
+    bs, w = bsdf.sample(mi.BSDFContext(), si, validation.lanes(mi.Float, rng.random(n)),
+                        validation.lanes(mi.Point2f, rng.random(n), rng.random(n)))
     wo, red = np.array(bs.wo), np.array(w)[0]
     values = [red * g(wo) for g in tests]
     return [v.mean() for v in values], [v.std() / np.sqrt(n) for v in values], bs

@@ -126,7 +126,8 @@ def test_footprint_furnace_and_weights(roughness):
             # The shading hash's source: each lane its own probe, residual texels and rounding.
             validation.scatter_shading_points(si, rng)
             ctx = mi.BSDFContext()
-            bs, w = bsdf.sample(ctx, si, mi.Float(rng.random(n)), mi.Point2f(rng.random(n), rng.random(n)))
+            bs, w = bsdf.sample(ctx, si, validation.lanes(mi.Float, rng.random(n)),
+                                validation.lanes(mi.Point2f, rng.random(n), rng.random(n)))
             w = np.array(w)
             # Weights are finite; single ones may be negative (the control-variate residual
             # is an unbiased, signed estimate), their mean is the albedo.
@@ -146,17 +147,18 @@ def test_no_nan_on_random_and_degenerate_footprints(roughness):
     n = 300_000
     wi = rng.normal(size=(n, 3)); wi /= np.linalg.norm(wi, axis=1, keepdims=True)
     wo = rng.normal(size=(n, 3)); wo /= np.linalg.norm(wo, axis=1, keepdims=True)
-    si = make_si(mi.Vector3f(*wi.T), mi.Point2f(*(rng.random((n, 2)) * 40 - 20).T), n)
+    si = make_si(validation.lanes(mi.Vector3f, *wi.T), validation.lanes(mi.Point2f, *(rng.random((n, 2)) * 40 - 20).T), n)
     scale = 10.0 ** rng.uniform(-8, 4, size=(n, 4))       # zero-ish to huge
     scale[: n // 10] = 0.0                                 # zero footprints
     scale[n // 10: n // 5, 1:3] = 0.0                      # skewed: a line
     scale[n // 5: n // 4] = np.inf                         # degenerate input
     scale[n // 4: n // 3, 2:] = scale[n // 4: n // 3, :2] * rng.uniform(0.9, 1.1, (n // 3 - n // 4, 1))  # sheared flat
-    si.duv_dx = mi.Vector2f(*scale[:, :2].T)
-    si.duv_dy = mi.Vector2f(*scale[:, 2:].T)
+    si.duv_dx = validation.lanes(mi.Vector2f, *scale[:, :2].T)
+    si.duv_dy = validation.lanes(mi.Vector2f, *scale[:, 2:].T)
     ctx = mi.BSDFContext()
-    value, pdf = bsdf.eval_pdf(ctx, si, mi.Vector3f(*wo.T))
-    bs, w = bsdf.sample(ctx, si, mi.Float(rng.random(n)), mi.Point2f(rng.random(n), rng.random(n)))
+    value, pdf = bsdf.eval_pdf(ctx, si, validation.lanes(mi.Vector3f, *wo.T))
+    bs, w = bsdf.sample(ctx, si, validation.lanes(mi.Float, rng.random(n)),
+                        validation.lanes(mi.Point2f, rng.random(n), rng.random(n)))
     for arr in (np.array(value), np.array(pdf), np.array(w), np.array(bs.pdf), np.array(bs.wo)):
         assert np.all(np.isfinite(arr))
     # Footprint evaluations are unbiased control-variate estimates: finite, rarely negative.
@@ -486,7 +488,7 @@ def test_sheared_footprint_matches_brute_force_over_the_parallelogram(a, shear):
         numbers = (mi.Point2f(rng.random(n), rng.random(n)), mi.Point2f(rng.random(n), rng.random(n)),
                    mi.Float(rng.random(n)))
         st = bsdf.estimator.state(si, fr, enabled, *numbers)
-        ms = np.array(bsdf.estimator.eval(fr, st, fr.mirror(mi.Vector3f(unit(wo))), enabled))[0]
+        ms = np.array(bsdf.estimator.eval(fr, st, fr.mirror(validation.direction(wo, n)), enabled))[0]
         bf_mean, bf_err = validation.parallelogram_brute_force(params, uv, a, shear, N_TEXELS, wi, wo)
         ms_mean, ms_err = ms.mean(), ms.std() / np.sqrt(n)
         tolerance = 5.0 * np.hypot(ms_err, bf_err) + APPROXIMATION * abs(bf_mean)
@@ -710,3 +712,22 @@ def test_emitter_directions_marked_exact_shade_rough_probes_texel_by_texel(monke
         a, b = w[0::2] * g(wo_s[:, 0::2]), w0[0::2] * g(wo_s0[:, 0::2])
         tolerance = 5.0 * np.hypot(a.std(), b.std()) / np.sqrt(a.size) + 1e-4 * abs(b.mean())
         assert abs(a.mean() - b.mean()) <= tolerance, (a.mean(), b.mean(), tolerance)
+
+
+
+@pytest.mark.parametrize("visibility", [False, True])
+def test_a_constant_direction_shades_as_a_computed_one(visibility):
+    """bsdf.eval at a direction given as a constant (a script's mi.Vector3f(x, y, z)) beside
+    shading points whose viewer is computed: the same values as at the same direction
+    computed per lane. Without evaluating the constant first (jit_arrays.evaluated), the
+    visibility bins came from a wrong uniform_hemisphere_to_square: 0.037 where the value is
+    0.082."""
+    bsdf = mi.load_dict(dict(BASE, visibility=visibility))
+    n = 20000
+    wi, wo = DIRECTIONS[0]
+    si = validation.sheared_interaction(n, [0.3, 0.55], 10.0, 0.0, N_TEXELS, unit(wi))
+    validation.scatter_shading_points(si, np.random.default_rng(3))
+    ctx = non_delta_context()
+    constant = np.array(bsdf.eval(ctx, si, mi.Vector3f(unit(wo))))
+    computed = np.array(bsdf.eval(ctx, si, validation.direction(wo, n)))
+    np.testing.assert_allclose(constant, computed, rtol=1e-5, atol=1e-7)

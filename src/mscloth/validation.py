@@ -8,11 +8,36 @@ import mitsuba as mi
 import numpy as np
 
 from .bsdf.lobes import enabled_lobes
+from .jit_arrays import lane_values, opaque
 
 
 def _unit(v):
     v = np.asarray(v, dtype=float)
     return (v / np.linalg.norm(v)).tolist()
+
+
+# The helpers below hand the BSDF its constants (directions, uv, footprint edges) as opaque
+# values and its per-lane inputs in aligned memory (:func:`.jit_arrays.lane_values`): a
+# test's kernels are then the same for every direction and footprint it tries, and the
+# same from run to run, so Dr.Jit compiles a footprint kernel (up to 30 s) once, not once
+# per case, and its kernel cache finds it the next time.
+def constants(cls, n: int, *values):
+    """``cls`` of the numbers ``values`` on ``n`` lanes, each an opaque array (whole width:
+    one-lane opaque inputs beside wider ones made symbolic loops run one lane wide)."""
+    return cls(*(dr.opaque(mi.Float, float(v), n) for v in values))
+
+
+def direction(v, n: int):
+    """The unit vector along ``v`` on ``n`` lanes (:func:`constants`). Hand the footprint
+    estimator's own methods directions computed as the shading point's are: a literal
+    ``wo`` beside a computed ``si.wi`` reads wrong visibility bins
+    (:func:`.jit_arrays.evaluated`, which the BSDF's methods apply themselves)."""
+    return constants(mi.Vector3f, n, *_unit(v))
+
+
+def lanes(cls, *arrays):
+    """``cls`` of per-lane NumPy ``arrays`` (one per component), 64-byte aligned."""
+    return cls(*(lane_values(np.asarray(a, dtype=np.float32)) for a in arrays))
 
 
 def non_delta_context():
@@ -25,11 +50,11 @@ def footprint_interaction(n: int, uv, half_texels: float, tile_texels: int, wi):
     """``n`` lanes at ``uv`` with a square footprint of half-width ``half_texels`` texels
     (uv_scale 1, a tile of ``tile_texels`` texels)."""
     si = dr.zeros(mi.SurfaceInteraction3f, n)
-    si.wi = mi.Vector3f(_unit(wi))
-    si.uv = mi.Point2f(uv)
+    si.wi = direction(wi, n)
+    si.uv = constants(mi.Point2f, n, *uv)
     d = 2.0 * half_texels / tile_texels  # |du/dx| + |du/dy| = 2 * half-width
-    si.duv_dx = mi.Vector2f(d, 0.0)
-    si.duv_dy = mi.Vector2f(0.0, d)
+    si.duv_dx = constants(mi.Vector2f, n, d, 0.0)
+    si.duv_dy = constants(mi.Vector2f, n, 0.0, d)
     return si
 
 
@@ -47,11 +72,11 @@ def footprint_expectation(bsdf, uv, half_texels, tile_texels, wi, wo, n=20000, s
     def draw(name):  # drawn whether frozen or not: the others stay the same numbers
         u = rng.random(n)
         return np.full(n, 0.5) if name in frozen else u
-    xi = mi.Point2f(draw("xi"), draw("xi"))
-    xi_round = mi.Point2f(draw("round"), draw("round"))
-    u_probe = mi.Float(draw("probe"))
+    xi = lanes(mi.Point2f, draw("xi"), draw("xi"))
+    xi_round = lanes(mi.Point2f, draw("round"), draw("round"))
+    u_probe = lanes(mi.Float, draw("probe"))
     st = bsdf.estimator.state(si, fr, enabled, xi, xi_round, u_probe)
-    value = bsdf.estimator.eval(fr, st, fr.mirror(mi.Vector3f(_unit(wo))), enabled)
+    value = bsdf.estimator.eval(fr, st, fr.mirror(direction(wo, n)), enabled)
     v = np.array(value)[0]
     return float(v.mean()), float(v.std() / np.sqrt(n)), bool(np.array(st.fp.use)[0])
 
@@ -72,12 +97,12 @@ def probe_expectation(bsdf, si, wo, seed=1, grid=None, exact=None, probe=None, c
     estimator = bsdf.estimator
     fr = bsdf.fibre.frame(si, True)
     rng = np.random.default_rng(seed)
-    xi = mi.Point2f(rng.random(n), rng.random(n))
-    xi_round = mi.Point2f(rng.random(n), rng.random(n))
-    fp = estimator.footprint(si, fr, mi.Float(0.0), mi.Float(rng.random(n) if probe is None else np.full(n, probe)))
+    xi = lanes(mi.Point2f, rng.random(n), rng.random(n))
+    xi_round = lanes(mi.Point2f, rng.random(n), rng.random(n))
+    fp = estimator.footprint(si, fr, mi.Float(0.0), lanes(mi.Float, rng.random(n) if probe is None else np.full(n, probe)))
     exact = covered or (estimator.exact_corners() if exact is None else exact)
     st = estimator.state(si, fr, enabled, xi, xi_round, fp=fp, grid=grid, exact=exact)
-    wo_m = fr.mirror(mi.Vector3f(_unit(wo)))
+    wo_m = fr.mirror(direction(wo, n))
     if covered:
         v = np.array(estimator.eval_pdf_covered(fr, st, wo_m, enabled)[0])[0]
     else:
@@ -103,13 +128,13 @@ def probe_brute_force(params: dict, boxes, tile_texels: int, wi, wo, seed=2):
     n = boxes.shape[2]
     cdf = np.cumsum(areas, axis=0) / areas.sum(axis=0)
     pick = np.minimum((rng.random(n)[None, :] >= cdf).sum(axis=0), len(boxes) - 1)
-    lanes = np.arange(n)
-    px = x0[pick, lanes] + rng.random(n) * (x1 - x0)[pick, lanes]
-    py = y0[pick, lanes] + rng.random(n) * (y1 - y0)[pick, lanes]
+    lane = np.arange(n)
+    px = x0[pick, lane] + rng.random(n) * (x1 - x0)[pick, lane]
+    py = y0[pick, lane] + rng.random(n) * (y1 - y0)[pick, lane]
     si = dr.zeros(mi.SurfaceInteraction3f, n)
-    si.uv = mi.Point2f(px / tile_texels, py / tile_texels)
-    si.wi = mi.Vector3f(_unit(wi))
-    v = np.array(point.eval(non_delta_context(), si, mi.Vector3f(_unit(wo))))[0]
+    si.uv = lanes(mi.Point2f, px / tile_texels, py / tile_texels)
+    si.wi = direction(wi, n)
+    v = np.array(point.eval(non_delta_context(), si, direction(wo, n)))[0]
     return float(v.mean()), float(v.std() / np.sqrt(n))
 
 
@@ -119,9 +144,9 @@ def brute_force(params: dict, uv, half_texels, tile_texels, wi, wo, n=200000, se
     rng = np.random.default_rng(seed)
     p = np.asarray(uv) + (rng.random((n, 2)) * 2.0 - 1.0) * half_texels / tile_texels
     si = dr.zeros(mi.SurfaceInteraction3f, n)
-    si.wi = mi.Vector3f(_unit(wi))
-    si.uv = mi.Point2f(p[:, 0], p[:, 1])
-    v = np.array(point.eval(non_delta_context(), si, mi.Vector3f(_unit(wo))))[0]
+    si.wi = direction(wi, n)
+    si.uv = lanes(mi.Point2f, p[:, 0], p[:, 1])
+    v = np.array(point.eval(non_delta_context(), si, direction(wo, n)))[0]
     return float(v.mean()), float(v.std() / np.sqrt(n))
 
 
@@ -140,10 +165,10 @@ def sheared_interaction(n: int, uv, a_texels: float, shear: float, tile_texels: 
     UV unit (si.dn_du, si.dn_dv; 0: flat)."""
     si = footprint_interaction(n, uv, 0.0, tile_texels, wi)
     (ax, ay), (bx, by) = _edges(a_texels, shear, rotation)
-    si.duv_dx = mi.Vector2f(ax / tile_texels, ay / tile_texels)
-    si.duv_dy = mi.Vector2f(bx / tile_texels, by / tile_texels)
-    si.dn_du = mi.Vector3f(float(curvature), 0.0, 0.0)
-    si.dn_dv = mi.Vector3f(0.0, float(curvature), 0.0)
+    si.duv_dx = constants(mi.Vector2f, n, ax / tile_texels, ay / tile_texels)
+    si.duv_dy = constants(mi.Vector2f, n, bx / tile_texels, by / tile_texels)
+    si.dn_du = constants(mi.Vector3f, n, curvature, 0.0, 0.0)
+    si.dn_dv = constants(mi.Vector3f, n, 0.0, curvature, 0.0)
     return si
 
 
@@ -176,9 +201,9 @@ def curved_pixel_expectation(bsdf, n: int, uv, a_texels: float, shear: float, ti
     normal (the directions local to it)."""
     si = sheared_interaction(n, uv, a_texels, shear, tile_texels, wi, curvature=curvature)
     du, dv = _pixel_points(n, a_texels, shear, tile_texels, seed)
-    a, b = mi.Float(curvature * du), mi.Float(curvature * dv)
-    si.wi = to_tilted(mi.Vector3f(_unit(wi)), a, b)
-    return shading_expectation(bsdf, si, to_tilted(mi.Vector3f(_unit(wo)), a, b), seed=seed + 1)
+    a, b = lanes(mi.Float, curvature * du), lanes(mi.Float, curvature * dv)
+    si.wi = to_tilted(direction(wi, n), a, b)
+    return shading_expectation(bsdf, si, to_tilted(direction(wo, n), a, b), seed=seed + 1)
 
 
 def scatter_shading_points(si, rng):
@@ -186,7 +211,7 @@ def scatter_shading_points(si, rng):
     the footprint estimator's shading hash, and so each lane's probe, residual texels and
     rounding, then differ between lanes (interactions built with ``dr.zeros`` share one)."""
     n = dr.width(si)
-    si.p = mi.Point3f(*(mi.Float(rng.random(n) * 10.0) for _ in range(3)))
+    si.p = lanes(mi.Point3f, *(rng.random(n) * 10.0 for _ in range(3)))
 
 
 def shading_expectation(bsdf, si, wo, seed=3):
@@ -198,7 +223,7 @@ def shading_expectation(bsdf, si, wo, seed=3):
     n = dr.width(si)
     scatter_shading_points(si, np.random.default_rng(seed))
     if not isinstance(wo, mi.Vector3f):
-        wo = mi.Vector3f(_unit(wo))
+        wo = direction(wo, n)
     v = np.array(bsdf.eval(non_delta_context(), si, wo))[0]
     return float(v.mean()), float(v.std() / np.sqrt(n))
 
@@ -211,10 +236,10 @@ def parallelogram_brute_force(params: dict, uv, a_texels: float, shear: float, t
     point = mi.load_dict(dict(params, multiscale=False))
     du, dv = _pixel_points(n, a_texels, shear, tile_texels, seed, rotation)
     si = dr.zeros(mi.SurfaceInteraction3f, n)
-    si.uv = mi.Point2f(uv[0] + du, uv[1] + dv)
+    si.uv = lanes(mi.Point2f, uv[0] + du, uv[1] + dv)
     # The point's normal tilts by curvature * (du, dv): directions in its own frame.
-    a, b = mi.Float(curvature * du), mi.Float(curvature * dv)
-    si.wi = to_tilted(mi.Vector3f(_unit(wi)), a, b)
-    wo_local = to_tilted(mi.Vector3f(_unit(wo)), a, b)
+    a, b = lanes(mi.Float, curvature * du), lanes(mi.Float, curvature * dv)
+    si.wi = to_tilted(direction(wi, n), a, b)
+    wo_local = to_tilted(direction(wo, n), a, b)
     v = np.array(point.eval(non_delta_context(), si, wo_local))[0]
     return float(v.mean()), float(v.std() / np.sqrt(n))
