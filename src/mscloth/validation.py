@@ -22,8 +22,8 @@ def _unit(v):
 # same from run to run, so Dr.Jit compiles a footprint kernel (up to 30 s) once, not once
 # per case, and its kernel cache finds it the next time.
 def constants(cls, n: int, *values):
-    """``cls`` of the numbers ``values`` on ``n`` lanes, each an opaque array (whole width:
-    one-lane opaque inputs beside wider ones made symbolic loops run one lane wide)."""
+    """``cls`` of the numbers ``values`` on ``n`` lanes, each an opaque array: computed
+    inputs as wide as a render's, not literals that fold into the traced kernel."""
     return cls(*(dr.opaque(mi.Float, float(v), n) for v in values))
 
 
