@@ -714,7 +714,6 @@ def test_emitter_directions_marked_exact_shade_rough_probes_texel_by_texel(monke
         assert abs(a.mean() - b.mean()) <= tolerance, (a.mean(), b.mean(), tolerance)
 
 
-
 @pytest.mark.parametrize("visibility", [False, True])
 def test_a_constant_direction_shades_as_a_computed_one(visibility):
     """bsdf.eval at a direction given as a constant (a script's mi.Vector3f(x, y, z)) beside

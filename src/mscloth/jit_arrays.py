@@ -94,12 +94,15 @@ def evaluated(v):
     mirrored by a computed viewer side, read the visibility tables at the wrong bins
     (0.037 against 0.082 over a footprint). Renders hand over computed directions, which
     this leaves as they are."""
-    if (not dr.is_jit_v(mi.Float) or dr.flag(dr.JitFlag.SymbolicScope)
-            or not any(c.state == dr.VarState.Literal for c in v)):
+    if not dr.is_jit_v(mi.Float) or dr.flag(dr.JitFlag.SymbolicScope):
         return v
-    v = mi.Vector3f(v)
-    dr.make_opaque(v)
-    return v
+
+    def computed(c):  # (only literals: the others stay unevaluated, no kernel launched)
+        if c.state == dr.VarState.Literal:
+            c = mi.Float(c)
+            dr.make_opaque(c)
+        return c
+    return mi.Vector3f(*(computed(c) for c in v))
 
 
 def opaque(dtype, value):

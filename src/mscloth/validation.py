@@ -8,7 +8,7 @@ import mitsuba as mi
 import numpy as np
 
 from .bsdf.lobes import enabled_lobes
-from .jit_arrays import lane_values, opaque
+from .jit_arrays import lane_values
 
 
 def _unit(v):
@@ -37,7 +37,7 @@ def direction(v, n: int):
 
 def lanes(cls, *arrays):
     """``cls`` of per-lane NumPy ``arrays`` (one per component), 64-byte aligned."""
-    return cls(*(lane_values(np.asarray(a, dtype=np.float32)) for a in arrays))
+    return cls(*(lane_values(a) for a in arrays))
 
 
 def non_delta_context():
