@@ -23,7 +23,10 @@ from common import parse_settings, set_class_attributes, setup_mitsuba
 def parse_variant(spec: str):
     """'LABEL: --attr A=1 --set b=2 --freeze xi' -> (label, {attr: value}, {param: value}).
     ``--freeze NAME`` (xi, round or u) holds that random number of the estimator at 1/2 for
-    every shading point: biased, but its change of the noise is that number's share."""
+    every shading point: biased, but its change of the noise is that number's share.
+    ``--freeze offset``: the footprint ignores the camera sample's pixel offset, which in
+    renders places the probe and the residual texels (``STRATIFY``); the hash's u and xi
+    place them instead (freeze those too to hold them)."""
     label, _, rest = spec.partition(":")
     words = shlex.split(rest)
     pairs = list(zip(words[::2], words[1::2]))
@@ -31,6 +34,8 @@ def parse_variant(spec: str):
     frozen = [item for flag, item in pairs if flag == "--freeze"]
     if frozen:
         attrs["shading_hash"] = frozen_hash(frozen)
+    if "offset" in frozen:
+        attrs["footprint"] = footprint_without_offset()
     params = parse_settings(item for flag, item in pairs if flag not in ("--attr", "--freeze"))
     return label.strip(), attrs, params
 
@@ -49,6 +54,18 @@ def frozen_hash(names):
         return (half if "xi" in names else xi, half if "round" in names else xi_round,
                 mi.Float(0.5) if "u" in names else u)
     return hashed
+
+
+def footprint_without_offset():
+    """``FootprintEstimator.footprint`` as if no pixel offset were known."""
+    import dataclasses
+    from mscloth.bsdf.footprint_estimator import FootprintEstimator
+
+    original = FootprintEstimator.footprint
+
+    def footprint(self, si, fr, *args, **kwargs):
+        return original(self, si, dataclasses.replace(fr, pixel_offset=None), *args, **kwargs)
+    return footprint
 
 
 _DIRECT_REFERENCES = {}

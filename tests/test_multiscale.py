@@ -574,6 +574,41 @@ def test_triangle_bins_match_the_tables():
         np.testing.assert_allclose(got, expected, atol=2e-5)
 
 
+def test_the_square_map_is_mitsubas_with_constant_components():
+    """sat_queries.hemisphere_to_square, which every direction bin read goes through, gives
+    Mitsuba's uniform_hemisphere_to_square to the bit on computed directions, and the
+    scalar variant's values where x or y is a literal 0 beside a computed z, also inside a
+    symbolic if. Mitsuba's own map returns y = -0.080 instead of 0.5 at (-0.4, 0, 0.9) then
+    (LLVM folds the sign of select(|x| > 0, x, 0))."""
+    from mscloth.bsdf.sat_queries import hemisphere_to_square
+
+    rng = np.random.default_rng(41)
+    w = rng.normal(size=(4096, 3))
+    w[:, 2] = np.abs(w[:, 2])
+    w[:4] = [[0, 0, 1], [0.5, 0, 0.5], [0, -0.5, 0.5], [-1e-7, 1e-7, 1]]
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    wv = validation.lanes(mi.Vector3f, *w.T)
+    np.testing.assert_array_equal(np.array(hemisphere_to_square(wv)), np.array(mi.warp.uniform_hemisphere_to_square(wv)))
+
+    n = 16
+    z = validation.constants(mi.Float, n, 0.9)
+    inside = validation.constants(mi.Float, n, 1.0) > 0.5
+
+    @dr.syntax
+    def in_branch(square, inside, x, y, z):  # (dr.syntax functions see no closure)
+        p = mi.Point2f(0.0)
+        if inside:
+            p = square(mi.Vector3f(x, y, z))
+        return p
+
+    for x, y in ((-0.4, 0.0), (0.0, -0.4), (0.4, 0.0), (0.0, 0.4), (0.0, 0.0), (-0.3, -0.3)):
+        s = 1.0 / float(np.sqrt(x * x + y * y + 0.81))
+        expected = mi.scalar_rgb.warp.uniform_hemisphere_to_square(mi.scalar_rgb.Vector3f(x * s, y * s, 0.9 * s))
+        z = validation.constants(mi.Float, n, 0.9 * s)
+        for got in (hemisphere_to_square(mi.Vector3f(x * s, y * s, z)), in_branch(hemisphere_to_square, inside, x * s, y * s, z)):
+            np.testing.assert_allclose(np.array(got), np.tile(np.array(expected)[:, None], n), atol=1e-6)
+
+
 def test_footprint_means_are_means_and_lobe_choices_a_distribution(monkeypatch):
     """Footprints of 1-5 texels anywhere, sheared or not: the SAT means of the rounded box
     are averages (yarn coverage and cluster shares in [0, 1], the shares summing to the
@@ -718,9 +753,8 @@ def test_emitter_directions_marked_exact_shade_rough_probes_texel_by_texel(monke
 def test_a_constant_direction_shades_as_a_computed_one(visibility):
     """bsdf.eval at a direction given as a constant (a script's mi.Vector3f(x, y, z)) beside
     shading points whose viewer is computed: the same values as at the same direction
-    computed per lane. Without evaluating the constant first (jit_arrays.evaluated), the
-    visibility bins came from a wrong uniform_hemisphere_to_square: 0.037 where the value is
-    0.082."""
+    computed per lane. Through Mitsuba's uniform_hemisphere_to_square the visibility bins
+    were wrong: 0.037 where the value is 0.082."""
     bsdf = mi.load_dict(dict(BASE, visibility=visibility))
     n = 20000
     wi, wo = DIRECTIONS[0]

@@ -86,25 +86,6 @@ def gather_block(source, start, n: int, active=True):
     return _packets(mi.Vector4f, gather, source, start, n, active)
 
 
-def evaluated(v):
-    """``v`` (a 3-vector) with its constant components evaluated into memory (JIT
-    variants). ``mi.warp.uniform_hemisphere_to_square`` of a vector whose x and y are
-    literals and whose z is not returns a wrong y (Mitsuba 3.9.1, Dr.Jit 1.5.0: -0.080
-    instead of 0.5 at (-0.4, 0, 0.9)), so a constant ``wo`` (a test's or a script's),
-    mirrored by a computed viewer side, read the visibility tables at the wrong bins
-    (0.037 against 0.082 over a footprint). Renders hand over computed directions, which
-    this leaves as they are."""
-    if not dr.is_jit_v(mi.Float) or dr.flag(dr.JitFlag.SymbolicScope):
-        return v
-
-    def computed(c):  # (only literals: the others stay unevaluated, no kernel launched)
-        if c.state == dr.VarState.Literal:
-            c = mi.Float(c)
-            dr.make_opaque(c)
-        return c
-    return mi.Vector3f(*(computed(c) for c in v))
-
-
 def opaque(dtype, value):
     """``value`` as a one-lane evaluated (opaque) JIT array of ``dtype`` (``mi.Float`` or
     ``mi.UInt32``), a plain Python number in scalar variants. For a constant of one BSDF

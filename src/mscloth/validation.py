@@ -28,10 +28,8 @@ def constants(cls, n: int, *values):
 
 
 def direction(v, n: int):
-    """The unit vector along ``v`` on ``n`` lanes (:func:`constants`). Hand the footprint
-    estimator's own methods directions computed as the shading point's are: a literal
-    ``wo`` beside a computed ``si.wi`` reads wrong visibility bins
-    (:func:`.jit_arrays.evaluated`, which the BSDF's methods apply themselves)."""
+    """The unit vector along ``v`` on ``n`` lanes (:func:`constants`): computed, as a
+    render's directions are, so that one kernel serves every direction tested."""
     return constants(mi.Vector3f, n, *_unit(v))
 
 

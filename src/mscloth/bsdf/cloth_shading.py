@@ -14,7 +14,6 @@ import drjit as dr
 import mitsuba as mi
 
 from ..scattering import spongecake
-from ..jit_arrays import evaluated
 from ..lanes import pick
 from .fibre_bsdf import FibreBSDF, edges_in_texels
 from .footprint_estimator import FootprintEstimator
@@ -114,7 +113,7 @@ class ClothShading:
         fibre-level one; a symbolic if, so a packet of lanes that all take one branch
         skips the other's work."""
         fr = self.fibre.frame(si, active, pixel_offset, pixel_filter)
-        wos = [fr.mirror(evaluated(wo)) for wo in wos]
+        wos = [fr.mirror(wo) for wo in wos]
         albedo = (mi.Color3f(0.0), mi.Float(0.0))
         if self.estimator is None:
             values, pdfs, record = self._point_branch(si, fr, enabled, wos, samples, active)

@@ -349,10 +349,31 @@ def round_box(x0, y0, x1, y1, xi_x, xi_y):
     return dr.floor(x0 + xi_x), dr.floor(y0 + xi_y), dr.floor(x1 + xi_x), dr.floor(y1 + xi_y)
 
 
+def hemisphere_to_square(w):
+    """``mi.warp.uniform_hemisphere_to_square`` (the same values to the bit), written so that
+    LLVM compiles it right when ``w.x`` or ``w.y`` is a literal 0.
+
+    Mitsuba's concentric map takes the signs from ``select(|x| > |y|, x, y)``; with y a
+    literal 0, LLVM 19's instruction combiner folds ``select(|x| > 0, x, 0) < 0`` to
+    false, so a constant direction (-0.4, 0, z) with a computed z mapped to y = -0.08
+    instead of 0.5 and read the wrong direction bins (docs/decisions.md, "Constant
+    directions"). Each branch of the select takes its own sign here."""
+    s = dr.rsqrt(w.z + 1.0)
+    p = mi.Point2f(w.x * s, w.y * s)
+    x_major = dr.abs(p.x) > dr.abs(p.y)
+    norm = dr.norm(p)
+    r = dr.select(x_major, dr.copysign(norm, p.x), dr.copysign(norm, p.y))
+    phi = dr.atan2(dr.select(x_major, dr.mulsign(p.y, p.x), dr.abs(p.y)),
+                   dr.select(x_major, dr.abs(p.x), dr.mulsign(p.x, p.y)))
+    t = (4.0 / dr.pi) * phi
+    t = dr.select(x_major, t, 2.0 - t) * r
+    return mi.Point2f((dr.select(x_major, r, t) + 1.0) * 0.5, (dr.select(x_major, t, r) + 1.0) * 0.5)
+
+
 def _bin_cell(w, n: int):
     """(the four bins of the cell of bin centres around ``w`` in the order (a0, b0), (a1, b0),
     (a0, b1), (a1, b1), the fractions fx, fy of ``w`` across it)."""
-    p = mi.warp.uniform_hemisphere_to_square(w)
+    p = hemisphere_to_square(w)
     x = p.x * n - 0.5
     y = p.y * n - 0.5
     ax = dr.floor(x)

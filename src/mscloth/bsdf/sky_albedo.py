@@ -36,7 +36,7 @@ import numpy as np
 from ..jit_arrays import flat_array, gather_block, lane_values, opaque
 from ..precompute.direction_bins import square_to_hemisphere
 from ..precompute.summed_area import build_sat
-from .sat_queries import RectUnion, ResidualSATs, round_box
+from .sat_queries import RectUnion, ResidualSATs, hemisphere_to_square, round_box
 
 #: RGB and one zero channel per (side, node): one packet of four per corner read.
 CHANNELS_PER_BIN = 4
@@ -116,7 +116,7 @@ def node_cell(w, n: int):
     """(ka, fx, kb, fy, p): the node intervals along x and y around the upper-hemisphere
     direction ``w``, the fractions across them (:func:`node_interval`) and its square
     coordinates p."""
-    p = mi.warp.uniform_hemisphere_to_square(w)
+    p = hemisphere_to_square(w)
     return node_interval(p.x, n) + node_interval(p.y, n) + (p,)
 
 
