@@ -6,7 +6,7 @@ one depth to the next is the noise of that bounce's light, which multi-scale sha
 first hit cannot remove. At several ``--spp`` it shows how each method's noise per sample
 falls with the count under the scene's stratified sampler (a noise per sample that stays
 is not stratified away). Variants may also set class attributes (``--attr``) or hold one
-of the footprint estimator's random numbers at 1/2 (``--freeze xi|round|u``, as in
+of the footprint estimator's random numbers at 1/2 (``--freeze xi|round|u|offset``, as in
 ``region_terms.py``): its change of the noise is that number's share.
 
     .venv/bin/python bench/noise_by_depth.py sphere --depth 2 3 8 \\

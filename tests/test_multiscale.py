@@ -585,13 +585,12 @@ def test_the_square_map_is_mitsubas_with_constant_components():
     rng = np.random.default_rng(41)
     w = rng.normal(size=(4096, 3))
     w[:, 2] = np.abs(w[:, 2])
-    w[:4] = [[0, 0, 1], [0.5, 0, 0.5], [0, -0.5, 0.5], [-1e-7, 1e-7, 1]]
+    w[:6] = [[0, 0, 1], [0.5, 0, 0.5], [0, -0.5, 0.5], [-1e-7, 1e-7, 1], [-0.0, -0.0, 1], [0.5, -0.0, 0.5]]
     w /= np.linalg.norm(w, axis=1, keepdims=True)
     wv = validation.lanes(mi.Vector3f, *w.T)
     np.testing.assert_array_equal(np.array(hemisphere_to_square(wv)), np.array(mi.warp.uniform_hemisphere_to_square(wv)))
 
     n = 16
-    z = validation.constants(mi.Float, n, 0.9)
     inside = validation.constants(mi.Float, n, 1.0) > 0.5
 
     @dr.syntax
