@@ -485,8 +485,8 @@ def test_sheared_footprint_matches_brute_force_over_the_parallelogram(a, shear):
         fr = bsdf.fibre.frame(si, True)
         enabled = enabled_lobes(ctx)
         rng = np.random.default_rng(12)
-        numbers = (mi.Point2f(rng.random(n), rng.random(n)), mi.Point2f(rng.random(n), rng.random(n)),
-                   mi.Float(rng.random(n)))
+        numbers = (validation.lanes(mi.Point2f, rng.random(n), rng.random(n)),
+                   validation.lanes(mi.Point2f, rng.random(n), rng.random(n)), validation.lanes(mi.Float, rng.random(n)))
         st = bsdf.estimator.state(si, fr, enabled, *numbers)
         ms = np.array(bsdf.estimator.eval(fr, st, fr.mirror(validation.direction(wo, n)), enabled))[0]
         bf_mean, bf_err = validation.parallelogram_brute_force(params, uv, a, shear, N_TEXELS, wi, wo)

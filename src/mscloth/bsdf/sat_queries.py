@@ -354,10 +354,11 @@ def hemisphere_to_square(w):
     LLVM compiles it right when ``w.x`` or ``w.y`` is a literal 0.
 
     Mitsuba's concentric map takes the signs from ``select(|x| > |y|, x, y)``; with y a
-    literal 0, LLVM 19's instruction combiner folds ``select(|x| > 0, x, 0) < 0`` to
-    false, so a constant direction (-0.4, 0, z) with a computed z mapped to y = -0.08
-    instead of 0.5 and read the wrong direction bins (docs/decisions.md, "Constant
-    directions"). Each branch of the select takes its own sign here."""
+    literal 0, LLVM 19's optimiser folds ``select(|x| > 0, x, 0) < 0`` to false (the
+    pass is not located; ``bench/llvm_sign_fold.py`` checks), so a constant direction
+    (-0.4, 0, z) with a computed z mapped to y = -0.08 instead of 0.5 and read the wrong
+    direction bins (docs/decisions.md, "Constant directions"). Each branch of the select
+    takes its own sign here."""
     s = dr.rsqrt(w.z + 1.0)
     p = mi.Point2f(w.x * s, w.y * s)
     x_major = dr.abs(p.x) > dr.abs(p.y)
