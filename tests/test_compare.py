@@ -549,6 +549,7 @@ def test_compare_without_the_evaluation_extra_says_what_to_install(monkeypatch, 
     (["sphere", "--reference-spp", "3"], "--reference-spp must be an even number"),
     (["sphere", "--out", "{file}/sub"], "cannot write to"),
     (["sphere", "--json", "{dir}"], "is a directory"),
+    (["sphere", "--json", "{file}"], "a_file exists; pass --force to overwrite"),
 ])
 def test_bad_input_gives_one_line_and_nonzero_exit(args, message, tmp_path):
     blocker = tmp_path / "a_file"

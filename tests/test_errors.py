@@ -1,4 +1,5 @@
 """Bad input raises a clear error naming the parameter and what was expected."""
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
@@ -126,3 +127,150 @@ def test_cli_names_a_misspelled_parameter_in_a_scene_file(tmp_path, capsys):
     lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].endswith('of type "diffuse": reflectanc'), lines
     assert not (tmp_path / "x.exr").exists()
+
+
+# ----------------------------------------------------------------------------------------
+# Albedos changed through mi.traverse are checked as the constructor checks them
+# ----------------------------------------------------------------------------------------
+from mscloth.bsdf.parameters import ENERGY_PARAMETERS, SPECTRUM_PARAMETERS, constant_channels  # noqa: E402
+
+LIGHT_CLOTH = {"type": "cloth", "pattern": "plain", "resolution": 16, "multiscale": False, "visibility": False}
+
+
+@pytest.mark.parametrize("value", [5.0, -1.0, float("nan"), float("inf")])
+@pytest.mark.parametrize("name", list(SPECTRUM_PARAMETERS))
+def test_an_albedo_out_of_range_through_traverse_is_an_error(name, value):
+    """Before the fix only the float parameters were checked on update: an albedo of 5
+    made the cloth create light, one of -1 black, with no error."""
+    bsdf = mi.load_dict(LIGHT_CLOTH)
+    params = mi.traverse(bsdf)
+    params[f"{name}.value"] = mi.Float(value)
+    with pytest.raises(ParameterError) as info:
+        params.update()
+    message = str(info.value)
+    assert f"parameter '{name}'" in message and "must lie in [0, 1] in every channel" in message, message
+    assert message.startswith("cloth [") and "\n" not in message
+
+
+@pytest.mark.parametrize("name,value", [("diffuse_albedo", 0.55), ("diffuse_transmittance", 0.25),
+                                        ("specular_albedo", 0.55), ("specular_transmittance", 0.55)])
+def test_an_albedo_that_creates_light_through_traverse_is_an_error(name, value):
+    """Each value is in [0, 1], but with the defaults of the others the sum is 1.05."""
+    assert set(ENERGY_PARAMETERS) == {"diffuse_albedo", "diffuse_transmittance", "specular_albedo",
+                                      "specular_transmittance"}
+    bsdf = mi.load_dict(LIGHT_CLOTH)
+    params = mi.traverse(bsdf)
+    params[f"{name}.value"] = mi.Float(value)
+    with pytest.raises(ParameterError, match=r"cloth \[.*\]: diffuse_albedo \+ diffuse_transmittance \+ "
+                                             r"max\(specular_albedo, specular_transmittance\) must be <= 1.*got 1.05"):
+        params.update()
+
+
+def test_an_rgb_albedo_through_traverse_is_checked_per_channel():
+    bsdf = mi.load_dict(dict(LIGHT_CLOTH, diffuse_albedo={"type": "rgb", "value": [0.1, 0.2, 0.45]}))
+    params = mi.traverse(bsdf)
+    params["diffuse_albedo.value"] = mi.Color3f(0.1, 1.5, 0.2)
+    with pytest.raises(ParameterError, match=r"parameter 'diffuse_albedo' .* must lie in \[0, 1\]"):
+        params.update()
+    params["diffuse_albedo.value"] = mi.Color3f(0.1, 0.2, 0.6)  # in range, but 0.6 + 0.1 + 0.4 > 1 in B
+    with pytest.raises(ParameterError, match="got 1.1 in channel B"):
+        params.update()
+
+
+def test_a_valid_albedo_through_traverse_is_taken_also_after_a_refused_one():
+    bsdf = mi.load_dict(LIGHT_CLOTH)
+    params = mi.traverse(bsdf)
+    params["diffuse_albedo.value"] = mi.Float(5.0)
+    with pytest.raises(ParameterError, match="'diffuse_albedo'"):
+        params.update()
+    # Exactly at the bound: 0.5 + 0.1 + max(0.4, 0.2) = 1.
+    params["diffuse_albedo.value"] = mi.Float(0.5)
+    params["specular_albedo.value"] = mi.Float(0.35)
+    params.update()
+    textures = bsdf.params.textures
+    np.testing.assert_allclose(constant_channels(textures["diffuse_albedo"]), 0.5)
+    np.testing.assert_allclose(constant_channels(textures["specular_albedo"]), 0.35)
+    si = dr.zeros(mi.SurfaceInteraction3f, 1)
+    si.wi = mi.Vector3f(0.0, 0.0, 1.0)
+    si.uv = mi.Point2f(0.3, 0.3)
+    value = np.array(bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(0.0, 0.6, 0.8)))
+    assert np.all(np.isfinite(value)) and np.all(value > 0.0)
+
+
+def test_texture_albedos_through_traverse_are_checked():
+    """A bitmap's data and a checkerboard's colours, changed through traverse, are bounded
+    as the constructor bounds them."""
+    def data(value):
+        return mi.TensorXf(np.full((2, 2, 3), value, dtype=np.float32))
+
+    bsdf = mi.load_dict(dict(LIGHT_CLOTH, diffuse_albedo={"type": "bitmap", "data": data(0.2), "raw": True},
+                             specular_transmittance={"type": "checkerboard", "color0": 0.1, "color1": 0.2}))
+    params = mi.traverse(bsdf)
+    params["diffuse_albedo.data"] = data(1.5)
+    with pytest.raises(ParameterError, match=r"parameter 'diffuse_albedo' .* got values in \[1.5, 1.5\]"):
+        params.update()
+    params["diffuse_albedo.data"] = data(0.3)
+    params.update()
+    params["specular_transmittance.color1.value"] = mi.Float(0.7)  # 0.2 + 0.1 + 0.7 > 1
+    with pytest.raises(ParameterError, match="must be <= 1 .*got 1"):
+        params.update()
+    params["specular_transmittance.color1.value"] = mi.Float(float("nan"))
+    with pytest.raises(ParameterError, match="parameter 'specular_transmittance'"):
+        params.update()
+
+
+# ----------------------------------------------------------------------------------------
+# Procedural textures as albedos
+# ----------------------------------------------------------------------------------------
+def checkerboard(color0, color1):
+    return {"type": "checkerboard", "color0": color0, "color1": color1}
+
+
+def test_a_checkerboard_albedo_is_bounded_by_its_colours():
+    """Before the fix any procedural texture was refused (and the message, with the
+    texture's several-line str(), was cut at its first line)."""
+    bsdf = mi.load_dict(dict(LIGHT_CLOTH, diffuse_albedo=checkerboard({"type": "rgb", "value": [0.2, 0.1, 0.3]}, 0.3)))
+    assert bsdf.params.textures["diffuse_albedo"].class_name() == "Checkerboard"
+    # Nested: the bound is the largest of every colour.
+    load_dict(dict(LIGHT_CLOTH, sheen_color=checkerboard(0.2, checkerboard(0.9, 0.1))))
+    with pytest.raises(ParameterError, match="must be <= 1 .*got 1.2 in channel"):
+        load_dict(dict(LIGHT_CLOTH, diffuse_albedo=checkerboard(0.2, 0.7)))
+    with pytest.raises(ParameterError, match=r"parameter 'sheen_color' .* must lie in \[0, 1\].*\[0.2, 1.5\]"):
+        load_dict(dict(LIGHT_CLOTH, sheen_color=checkerboard(0.2, checkerboard(1.5, 0.3))))
+
+
+@pytest.mark.parametrize("texture,named", [
+    ({"type": "mesh_attribute", "name": "vertex_color"}, "MeshAttribute"),
+    (checkerboard(0.2, {"type": "mesh_attribute", "name": "vertex_color"}), "Checkerboard > MeshAttribute"),
+])
+def test_an_albedo_texture_that_cannot_be_bounded_is_a_one_line_error(texture, named):
+    """A mesh attribute's values come from the mesh (and it says it does not vary in space,
+    so evaluating it anywhere gave a bound of 0): refused, in one line naming it by class."""
+    with pytest.raises(ParameterError) as info:
+        load_dict(dict(LIGHT_CLOTH, diffuse_albedo=texture))
+    message = str(info.value)
+    assert message == (f"cloth: parameter 'diffuse_albedo' ({SPECTRUM_PARAMETERS['diffuse_albedo'][1]}): cannot "
+                       f"bound the values of texture {named}; use a float, RGB, bitmap or checkerboard")
+
+
+def test_cli_shows_a_procedural_albedo_error_in_one_line(tmp_path, capsys):
+    from mscloth.cli import main
+
+    scene = tmp_path / "chk.xml"
+    scene.write_text('<scene version="3.0.0">\n'
+                     '    <shape type="rectangle">\n'
+                     '        <bsdf type="cloth">\n'
+                     '            <texture type="checkerboard" name="diffuse_albedo">\n'
+                     '                <rgb name="color0" value="0.2"/>\n'
+                     '                <texture type="mesh_attribute" name="color1">\n'
+                     '                    <string name="name" value="vertex_color"/>\n'
+                     '                </texture>\n'
+                     '            </texture>\n'
+                     '        </bsdf>\n'
+                     '    </shape>\n'
+                     '</scene>\n')
+    assert main(["render", str(scene), "--out", str(tmp_path / "x.exr")]) == 2
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(lines) == 1, lines
+    assert f"{scene} line 3: " in lines[0] and lines[0].endswith(
+        "cannot bound the values of texture Checkerboard > MeshAttribute; use a float, RGB, bitmap or checkerboard")

@@ -345,3 +345,165 @@ def test_swatch_under_area_lights_matches_fibre_level_shading(fabric, view):
         means.append(image.mean())
     # The image means' own noise at 4 spp over 43,200 pixels is ~0.3%.
     assert means[0] == pytest.approx(means[1], rel=0.03), means
+
+
+# ---------------------------------------------------------------- fabric values are checked
+def _fabric_file(tmp_path, data, name="f.json"):
+    import json
+
+    path = tmp_path / name
+    path.write_text(json.dumps(data))
+    return path
+
+
+def _load_error(path) -> str:
+    """The one-line ParameterError that loading the fabric file ``path`` raises."""
+    from mscloth.fabrics import load_fabric_file
+
+    with pytest.raises(ParameterError) as error:
+        load_fabric_file(path)
+    message = str(error.value)
+    assert "\n" not in message, message
+    return message
+
+
+def test_every_preset_passes_the_checks_unchanged_and_without_warnings(tmp_path):
+    """Presets are checked as they are built; building each again (and from a file with it
+    as base) gives the same fabric, with no warning."""
+    import dataclasses
+    import warnings
+
+    from mscloth.fabrics import load_fabric_file
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for name, preset in FABRICS.items():
+            assert dataclasses.replace(preset) == preset, name
+            loaded = load_fabric_file(_fabric_file(tmp_path, {"base": name}, f"{name}.json"))
+            assert loaded == dataclasses.replace(preset, name=name), name
+
+
+def test_fabric_file_zero_thread_count_names_the_field(tmp_path):
+    message = _load_error(_fabric_file(tmp_path, {"base": "denim", "ends_per_cm": 0}))
+    assert message.endswith("f.json: field 'ends_per_cm' must be > 0, got 0"), message
+
+
+def test_fabric_file_negative_thread_count_names_the_field(tmp_path):
+    message = _load_error(_fabric_file(tmp_path, {"base": "denim", "ends_per_cm": -5}))
+    assert message.endswith("f.json: field 'ends_per_cm' must be > 0, got -5"), message
+
+
+def test_fabric_file_colour_must_be_an_srgb_triple(tmp_path):
+    message = _load_error(_fabric_file(tmp_path, {"base": "denim", "warp_color": "black"}))
+    assert "f.json: field 'warp_color' must be an sRGB triple [r, g, b] of numbers in [0, 1]" in message
+    assert message.endswith("got 'black'"), message
+    message = _load_error(_fabric_file(tmp_path, {"base": "denim", "sheen_color": [0, 128, 255]}))
+    assert "field 'sheen_color' must be an sRGB triple" in message
+
+
+def test_fabric_file_naming_itself_as_base_is_a_cycle(tmp_path):
+    path = _fabric_file(tmp_path, {"base": "f.json"})
+    message = _load_error(path)
+    assert message == f"fabric file {path}: field 'base' makes a cycle: {path} -> f.json", message
+
+
+def test_fabric_file_base_chain_through_other_files_is_a_cycle(tmp_path, monkeypatch):
+    """Bases are found beside the file that names them, wherever the working directory is."""
+    _fabric_file(tmp_path, {"base": "b.json"}, "a.json")
+    _fabric_file(tmp_path, {"base": "a.json", "roughness": 0.2}, "b.json")
+    monkeypatch.chdir(tmp_path.parent)
+    message = _load_error(tmp_path / "a.json")
+    assert message.endswith("a.json: field 'base' makes a cycle: "
+                            f"{tmp_path / 'a.json'} -> b.json -> a.json"), message
+    # A chain without a cycle still loads.
+    _fabric_file(tmp_path, {"base": "denim", "roughness": 0.2}, "b.json")
+    from mscloth.fabrics import load_fabric_file
+    assert load_fabric_file(tmp_path / "a.json").roughness == 0.2
+
+
+def test_fabric_file_pattern_must_fit_the_base_structure(tmp_path):
+    message = _load_error(_fabric_file(tmp_path, {"base": "cotton-jersey", "pattern": "twill-2-1"}))
+    assert ("f.json: field 'pattern' 'twill-2-1' is a weave, but field 'structure' is 'knit' "
+            "(from base 'cotton-jersey'): give a knit pattern (jersey, rib-K-P") in message, message
+    message = _load_error(_fabric_file(tmp_path, {"base": "denim", "pattern": "rib-2-2"}))
+    assert "field 'pattern' 'rib-2-2' is a knit, but field 'structure' is 'woven'" in message
+
+
+def test_fabric_file_inclination_out_of_range_names_the_field(tmp_path):
+    message = _load_error(_fabric_file(tmp_path, {"base": "denim", "inclination_deg": 500}))
+    assert message.endswith("f.json: field 'inclination_deg' must be in (0, 90) degrees, got 500"), message
+    message = _load_error(_fabric_file(tmp_path, {"base": "denim", "inclination_deg": 0}))
+    assert "field 'inclination_deg' must be in (0, 90)" in message  # a flat weave has no yarn_height
+
+
+def test_fabric_file_yarn_far_wider_than_its_spacing_warns(tmp_path):
+    from mscloth.fabrics import load_fabric_file
+
+    path = _fabric_file(tmp_path, {"base": "denim", "yarn_diameter_mm": [100, 100]})
+    with pytest.warns(UserWarning, match=r"f.json: field 'yarn_diameter_mm': the warp yarn \(100 mm\) "
+                                         r"is 280x its spacing \(0.357 mm\)") as record:
+        load_fabric_file(path)
+    assert len(record) == 1 and "\n" not in str(record[0].message)
+
+
+@pytest.mark.parametrize("change,expected", [
+    ({"picks_per_cm": "many"}, "field 'picks_per_cm' must be a number"),
+    ({"fibre_twist_deg": 120}, "field 'fibre_twist_deg' must be in [-90, 90], got 120"),
+    ({"roughness": 0}, "field 'roughness' must be in (0, 1], got 0"),
+    ({"specular_albedo": 1.5}, "field 'specular_albedo' must be in [0, 1], got 1.5"),
+    ({"diffuse_albedo": 0.9}, "fields 'diffuse_albedo' + 'diffuse_transmittance' + max("),
+    ({"yarn_diameter_mm": [0.4, 0]}, "field 'yarn_diameter_mm' must be > 0 mm, got 0"),
+    ({"yarn_diameter_mm": [0.4, 0.4, 0.4]}, "field 'yarn_diameter_mm' must be one diameter in mm"),
+    ({"ply": 2.5}, "field 'ply' must be a whole number in [1, 8], got 2.5"),
+    ({"repeat": 0}, "field 'repeat' must be a whole number >= 1, got 0"),
+    ({"repeat": 400}, "fields 'repeat', 'texels_per_thread', 'ends_per_cm' and 'picks_per_cm' give a tile"),
+    ({"slub": [0.2, 9]}, "field 'slub' must be in [0, 4], got 9"),
+    ({"slub_length_mm": [8, 2]}, "field 'slub_length_mm' must be (shortest, longest) in mm"),
+    ({"slub_tone": 3}, "field 'slub_tone' must be in [0.5, 2], got 3"),
+    ({"structure": "felt"}, "field 'structure' must be 'woven' or 'knit', got 'felt'"),
+    ({"pattern": "twirl"}, "field 'pattern': unknown pattern 'twirl'"),
+    ({"base": "denimm"}, "field 'base': unknown fabric 'denimm' (did you mean 'denim'?)"),
+])
+def test_fabric_file_other_bad_values_name_their_field(tmp_path, change, expected):
+    message = _load_error(_fabric_file(tmp_path, {"base": "denim", **change}))
+    assert f"f.json: {expected}" in message, message
+
+
+def test_fabric_file_knit_loops_bound_the_thread_counts(tmp_path):
+    message = _load_error(_fabric_file(tmp_path, {"base": "cotton-jersey", "picks_per_cm": 100}))
+    assert "f.json: fields 'ends_per_cm' / 'picks_per_cm' (wales / courses per cm) of a knit must be in " \
+           "[0.3, 3]" in message, message
+    message = _load_error(_fabric_file(tmp_path, {"base": "cotton-jersey", "yarn_diameter_mm": [0.3, 0.3]}))
+    assert "field 'yarn_diameter_mm' must be one diameter in mm (a knit has one yarn)" in message
+
+
+def test_fabric_built_in_python_is_checked_as_a_file_is():
+    import dataclasses
+
+    from mscloth.fabrics import Fabric
+
+    with pytest.raises(ParameterError, match=r"^fabric 'mine': field 'ends_per_cm' must be > 0, got 0$"):
+        dataclasses.replace(fabric("denim"), name="mine", ends_per_cm=0)
+    with pytest.raises(ParameterError, match=r"^fabric 'mine': field 'warp_color' must be an sRGB triple"):
+        dataclasses.replace(fabric("denim"), name="mine", warp_color="black")
+    with pytest.raises(ParameterError, match=r"^fabric 'mine': field 'pattern' 'jersey' is a knit, but "
+                                             r"field 'structure' is 'woven': give a weave pattern"):
+        dataclasses.replace(fabric("denim"), name="mine", pattern="jersey")
+    with pytest.warns(UserWarning, match="^fabric 'mine': field 'yarn_diameter_mm'"):
+        dataclasses.replace(fabric("denim"), name="mine", yarn_diameter_mm=(100.0, 100.0))
+    # Lists become tuples: a Fabric is hashed (its maps are cached).
+    mine = dataclasses.replace(fabric("denim"), name="mine", warp_color=[0.1, 0.2, 0.3], repeat=[2, 1])
+    assert mine.warp_color == (0.1, 0.2, 0.3) and mine.repeat == (2, 1) and hash(mine)
+    assert isinstance(mine, Fabric)
+
+
+def test_the_bsdf_ranges_a_fabric_is_checked_by_are_the_plugins():
+    # fabrics.py keeps a copy (importing the plugin's table would pull in Mitsuba).
+    from mscloth.bsdf.parameters import FLOAT_PARAMETERS
+    from mscloth.fabrics import FIELD_RANGES
+
+    shared = set(FIELD_RANGES) & set(FLOAT_PARAMETERS)
+    assert {"roughness", "thickness", "sheen_roughness", "sheen_thickness"} <= shared
+    for name in shared:
+        _, low, high, low_inclusive, _ = FLOAT_PARAMETERS[name]
+        assert FIELD_RANGES[name] == (low, high, not low_inclusive, False), name

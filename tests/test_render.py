@@ -60,3 +60,42 @@ def test_render_progressive_averages_its_passes(monkeypatch):
     calls.clear()
     render_progressive(scene, 16, seed=0, quiet=True)
     assert calls == [(16, 0)]
+
+
+def _multijitter_scene():
+    return mi.load_dict({"type": "scene", "integrator": {"type": "path"},
+                         "sensor": {"type": "perspective", "sampler": {"type": "multijitter"},
+                                    "film": {"type": "hdrfilm", "width": 4, "height": 3}},
+                         "sky": {"type": "constant"}})
+
+
+def test_passes_keep_to_counts_the_sampler_takes(monkeypatch):
+    # multijitter takes 528 for 512: eight passes of 4096 would render 4224 in all.
+    from mscloth.render import samples_taken
+
+    scene = _multijitter_scene()
+    assert samples_taken(scene, 10) == 12 and samples_taken(scene, 512) == 528 and samples_taken(scene, 4096) == 4096
+    calls = []
+    monkeypatch.setattr(mi, "render", lambda scene, spp, seed: calls.append(spp) or dr.zeros(mi.TensorXf, (3, 4, 3)))
+    render_progressive(scene, 4096, passes=8, quiet=True)
+    assert sum(calls) == 4096 and all(samples_taken(scene, n) == n for n in calls), calls
+
+
+def test_an_interrupt_stops_the_passes_after_the_one_it_interrupted(monkeypatch):
+    # Mitsuba takes Ctrl-C during a render, logs it and swallows the signal (around a
+    # Python integrator): the passes must stop there, not run on to a complete image.
+    scene = _multijitter_scene()
+    calls = []
+
+    def render(scene, spp, seed):
+        calls.append(seed)
+        if calls == [0, 1]:  # Ctrl-C in the second pass of the first render
+            mi.Log(mi.LogLevel.Warn, "Received interrupt signal, winding down..")
+        return dr.zeros(mi.TensorXf, (3, 4, 3))
+
+    monkeypatch.setattr(mi, "render", render)
+    with pytest.raises(KeyboardInterrupt):
+        render_progressive(scene, 16, passes=4, quiet=True)
+    assert calls == [0, 1]
+    render_progressive(scene, 16, passes=4, quiet=True)  # the next render is not stopped
+    assert calls == [0, 1, 0, 1, 2, 3]

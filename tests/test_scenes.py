@@ -154,6 +154,9 @@ def test_shiny_scene_renders_finite_and_writes_as_xml_with_its_maps(name, tmp_pa
     (["render", "plane", "--res", "4x4"], "[8, 16384]"),
     (["render", "plane", "--out", "image.png"], ".exr"),
     (["scene", "nosuch", "--out", "x.xml"], "unknown scene"),
+    (["maps", "jersey", "--plies", "3", "--out", "m"], "--plies does not apply to jersey"),
+    (["maps", "plain", "--ply-twist", "30", "--out", "m"], "--ply-twist needs --plies 2 or more"),
+    (["maps", "denim", "--fabric", "--twist", "20", "--out", "m"], "--twist does not apply to a fabric preset"),
 ])
 def test_bad_input_is_one_clear_line(args, message, tmp_path):
     result = subprocess.run([sys.executable, "-m", "mscloth", *args], capture_output=True, text=True,
@@ -247,7 +250,7 @@ def test_render_refuses_to_overwrite_without_force(tmp_path, capsys):
     assert out.is_file() and out.with_suffix(".png").read_bytes() != b""
 
 
-@pytest.mark.parametrize("command", ["render", "demo"])
+@pytest.mark.parametrize("command", ["render", "demo", "scene"])
 @pytest.mark.parametrize("why", ["a file in the way", "permission denied"])
 def test_unwritable_out_fails_before_rendering_and_names_it(tmp_path, capsys, monkeypatch, command, why):
     import errno
@@ -269,6 +272,9 @@ def test_unwritable_out_fails_before_rendering_and_names_it(tmp_path, capsys, mo
     if command == "render":
         out = folder / "x.exr"
         args = ["render", "plane", "--spp", "1", "--res", "16x9", "--out", str(out)]
+    elif command == "scene":
+        out = folder / "x.xml"
+        args = ["scene", "plane", "--out", str(out)]
     else:
         out = folder / "demo.exr"
         args = ["demo", "--spp", "1", "--res", "16", "--out", str(folder)]
@@ -276,3 +282,29 @@ def test_unwritable_out_fails_before_rendering_and_names_it(tmp_path, capsys, mo
     captured = capsys.readouterr()
     assert captured.err.startswith(f"mscloth: error: cannot write {out}: ") and captured.err.count("\n") == 1
     assert "samples/s" not in captured.out and "render [" not in captured.err
+
+
+def test_render_names_its_output_after_the_scene_and_renders_the_count_the_sampler_takes(
+        tmp_path, capsys, monkeypatch):
+    # multijitter takes 12 samples for --spp 10: said once, in mscloth's words, and the
+    # header and the rate say 12. The default --out is out/SCENE.exr.
+    from mscloth.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["render", "plane", "--spp", "10", "--res", "16x9"]) == 0
+    captured = capsys.readouterr()
+    assert (tmp_path / "out" / "plane.exr").is_file() and (tmp_path / "out" / "plane.png").is_file()
+    assert "plane, 16x9, 12 spp" in captured.out
+    warned = [line for line in captured.err.splitlines() if "warning" in line.lower() or "WARN" in line]
+    assert warned == ["mscloth: warning: the scene's sampler (MultijitterSampler) takes 12 samples per pixel, "
+                      "not --spp 10: rendering 12"], captured.err
+
+
+def test_an_output_whose_png_is_a_directory_fails_before_rendering(tmp_path, capsys):
+    from mscloth.cli import main
+
+    (tmp_path / "d.png").mkdir()
+    assert main(["render", "plane", "--spp", "1", "--res", "16x9", "--out", str(tmp_path / "d.exr"), "--force"]) == 2
+    captured = capsys.readouterr()
+    assert captured.err == f"mscloth: error: cannot write {tmp_path / 'd.png'}: it is a directory\n"
+    assert not (tmp_path / "d.exr").exists() and "mscloth render:" not in captured.out

@@ -10,6 +10,7 @@ import configparser
 import os
 import random
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +22,11 @@ from mscloth.patterns.wif import parse_wif, read_wif
 
 ROOT = Path(__file__).resolve().parents[1]
 T, F = True, False
+
+# Most small drafts here give no Spacing= (and some weave oddly on purpose): their WifWarnings
+# are expected. The tests of the warnings themselves use pytest.warns / record them, which
+# shows every warning whatever this filter says.
+pytestmark = pytest.mark.filterwarnings("ignore::mscloth.patterns.wif.WifWarning")
 
 
 # The project's shared data sits beside the checkout (../shared), in CI too.
@@ -645,3 +651,203 @@ def test_thread_colour_without_colour_table_warns_once_and_weaves(tmp_path):
     # With a table, a colour it lacks is still an error.
     with_table = "\n".join(kept).replace("[WARP]", "[COLOR TABLE]\n1=0,101,0\n[WARP]").replace("Color=1", "Color=3")
     expect_error(with_table, "t.wif", "[WARP] line", "colour 3 is not in [COLOR TABLE]")
+
+
+# ---------------------------------------------------------------------------------------------
+# Warnings: every guess and every odd draft is shown, once per read, naming file and section
+# ---------------------------------------------------------------------------------------------
+
+# PLAIN with spacings in millimetres: reads without any warning.
+SPACED = PLAIN.replace("[WARP]\nThreads=2", "[WARP]\nThreads=2\nUnits=Millimeters\nSpacing=0.5") \
+              .replace("[WEFT]\nThreads=2", "[WEFT]\nThreads=2\nUnits=Millimeters\nSpacing=0.5")
+
+
+def wif_warnings(read, *args, **kwargs) -> list[str]:
+    """The messages of every warning ``read(*args, **kwargs)`` emits (all shown)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        read(*args, **kwargs)
+    return [str(w.message) for w in caught]
+
+
+def test_clean_draft_does_not_warn():
+    assert wif_warnings(parse_wif, SPACED, name="t.wif") == []
+    assert parse_wif(SPACED).meta["warnings"] == []
+
+
+def no_units_2229(tmp_path) -> Path:
+    """2229.wif without its Units= lines (``sed '/^Units=/d'``): Centimeters read as decipoints."""
+    text = (WIF_DIR / "2229.wif").read_text()
+    p = tmp_path / "nounits.wif"
+    p.write_text("".join(line for line in text.splitlines(keepends=True) if not line.startswith("Units=")))
+    return p
+
+
+@needs_data
+def test_missing_units_warns_with_the_tile_it_gives(tmp_path):
+    p = no_units_2229(tmp_path)
+    line = p.read_text().splitlines().index("Spacing=0.0185") + 1      # the [WARP] one
+    with pytest.warns(UserWarning, match=re.escape(
+            f"nounits.wif: [WARP] has no Units= for Spacing=0.0185 (line {line}); assuming decipoints "
+            f"(tile 0.0157 mm wide): give Units=")) as caught:
+        d = read_wif(p)
+    assert any(str(w.message).startswith("nounits.wif: [WEFT] has no Units= for Spacing=0.0185")
+               and "(tile 0.0157 mm tall)" in str(w.message) for w in caught)
+    assert len(caught) == 2
+    np.testing.assert_allclose(d.size_mm, 24 * 0.0185 * 25.4 / 720)     # 0.0157 mm, not 4.44 mm
+    assert d.meta["warp_units"] == "Decipoints"
+    assert len(d.meta["warnings"]) == 2 and d.meta["warnings"][0].startswith("[WARP] has no Units=")
+
+
+def test_missing_units_with_thickness_only_warns():
+    text = SPACED.replace("Units=Millimeters\nSpacing=0.5", "Thickness=10", 1)
+    with pytest.warns(UserWarning, match=re.escape(
+            "t.wif: [WARP] has no Units= for Thickness=10 (line ")) as caught:
+        parse_wif(text, name="t.wif")
+    assert any("assuming decipoints (yarns 0.353 mm thick)" in str(w.message) for w in caught)
+
+
+def test_missing_spacing_warns():
+    text = SPACED.replace("Units=Millimeters\nSpacing=0.5", "", 1)           # [WARP] only
+    with pytest.warns(UserWarning, match=re.escape(
+            "t.wif: [WARP] has no Spacing=; assuming 0.5 mm between warp ends (tile 1 mm wide): "
+            "give Spacing= and Units=")) as caught:
+        d = parse_wif(text, name="t.wif")
+    assert len(caught) == 1
+    np.testing.assert_allclose(d.warp_spacing, DEFAULT_SPACING_MM)
+
+
+def test_partial_spacing_section_warns():
+    text = SPACED.replace("Units=Millimeters\nSpacing=0.5", "Units=Millimeters", 1) \
+        + "[WARP SPACING]\n1=0.7\n"
+    with pytest.warns(UserWarning, match=re.escape(
+            "t.wif: [WARP SPACING] gives no spacing for 1 of 2 warp ends and [WARP] has no Spacing=; "
+            "assuming 0.5 mm for them (tile 1.2 mm wide)")):
+        d = parse_wif(text, name="t.wif")
+    np.testing.assert_allclose(d.warp_spacing, [0.7, 0.5])
+
+
+def test_text_before_first_section_warns_once():
+    text = "Saved by LoomProgram 2.0\nexport of 2024-01-01\n" + SPACED
+    with pytest.warns(UserWarning, match=re.escape(
+            "t.wif: line 1: text before the first section ignored ('Saved by LoomProgram 2.0' "
+            "and 1 more line)")) as caught:
+        d = parse_wif(text, name="t.wif")
+    assert len(caught) == 1
+    np.testing.assert_array_equal(d.drawdown, [[T, F], [F, T]])
+
+
+def test_missing_shafts_warns():
+    text = SPACED.replace("Shafts=2\n", "")
+    with pytest.warns(UserWarning, match=r"^t\.wif: \[WEAVING\] has no Shafts=; Shafts=2 inferred from the "
+                                         r"highest shaft used \(\[THREADING\] line \d+\): give Shafts=$"):
+        d = parse_wif(text, name="t.wif")
+    assert d.meta["shafts"] == 2
+
+
+def test_unthreaded_warp_ends_warn():
+    text = SPACED.replace("Threads=2", "Threads=6", 1).replace("[THREADING]\n1=1\n2=2", "[THREADING]\n1=1\n2=\n6=2")
+    with pytest.warns(UserWarning, match=re.escape(
+            "t.wif: [THREADING] gives no shaft for warp ends 2-5 (of 6): never lifted, they float under "
+            "every pick across the whole tile")):
+        d = parse_wif(text, name="t.wif")
+    assert not d.drawdown[:, 1:5].any()
+    one = SPACED.replace("Threads=2", "Threads=3", 1)
+    with pytest.warns(UserWarning, match=re.escape("[THREADING] gives no shaft for warp end 3 (of 3): "
+                                                   "never lifted, it floats")):
+        parse_wif(one, name="t.wif")
+
+
+def test_unlisted_weft_picks_warn():
+    text = SPACED.replace("[WEFT]\nThreads=2", "[WEFT]\nThreads=4")
+    with pytest.warns(UserWarning, match=re.escape(
+            "t.wif: [TREADLING] has no entry for weft picks 3-4 (of 4): nothing is lifted, so they float "
+            "over every warp end across the whole tile")):
+        parse_wif(text, name="t.wif")
+
+
+@pytest.mark.parametrize("tieup, expected", [
+    # Every treadle lifts nothing (empty tie-up lines): the weft covers the warp.
+    ("1=\n2=", "[TIEUP]: no thread interlaces: the treadles of every pick lift none of the shafts the "
+               "warp is threaded on, so the tile is every pick over the warp, with no weave"),
+    # Every treadle lifts every shaft: the warp covers the weft.
+    ("1=1,2\n2=1,2", "[TIEUP]: no thread interlaces: the treadles of every pick lift all of the shafts"),
+    # Nothing, then everything: each pick lies wholly over or under the warp.
+    ("1=\n2=1,2", "[TIEUP]: no weft pick interlaces with the warp: the treadles of every pick lift none "
+                  "or all of the shafts the warp is threaded on"),
+])
+def test_tieup_that_never_interlaces_warns(tieup, expected):
+    text = SPACED.replace("[TIEUP]\n1=1\n2=2", f"[TIEUP]\n{tieup}")
+    with pytest.warns(UserWarning, match=re.escape(f"t.wif: {expected}")) as caught:
+        parse_wif(text, name="t.wif")
+    assert len(caught) == 1
+
+
+def test_liftplan_lifting_the_same_shafts_every_pick_warns():
+    text = SPACED.replace("[TIEUP]\n1=1\n2=2\n[TREADLING]\n1=1\n2=2", "[LIFTPLAN]\n1=1\n2=1")
+    with pytest.warns(UserWarning, match=re.escape(
+            "t.wif: [LIFTPLAN]: no warp end interlaces with the weft: every pick lifts the same shafts, "
+            "so each warp end lies over or under every pick across the whole tile")):
+        parse_wif(text, name="t.wif")
+
+
+def test_earlier_warnings_are_shown_too():
+    """Warnings the reader only recorded in meta before are shown as well."""
+    listed = SPACED.replace("Version=1.1", "Version=1.2") + "[CONTENTS]\nWARP COLORS=yes\n"
+    with pytest.warns(UserWarning, match=re.escape("t.wif: [CONTENTS] line ")):
+        parse_wif(listed, name="t.wif")
+    with pytest.warns(UserWarning, match=re.escape("t.wif: no [COLOR PALETTE] Range: 0,255 assumed")):
+        parse_wif(SPACED + "[COLOR TABLE]\n1=255,0,0\n", name="t.wif")
+
+
+def test_each_warning_once_per_read_with_its_category_and_callers_line(tmp_path):
+    from mscloth import patterns
+    from mscloth.patterns.wif import WifWarning
+
+    p = tmp_path / "odd.wif"
+    p.write_text("junk\n" + SPACED.replace("Shafts=2\n", "").replace("Threads=2", "Threads=3", 1))
+    for read in (read_wif, patterns.read_wif, patterns.named_pattern):
+        for _ in range(2):                      # a second read warns again, once
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                read(str(p))
+            messages = [str(w.message) for w in caught]
+            assert len(messages) == 3 and len(set(messages)) == 3, messages
+            assert all(m.startswith("odd.wif: ") for m in messages)
+            assert all(w.category is WifWarning and issubclass(w.category, UserWarning) for w in caught)
+            # Attributed to the caller outside mscloth (here), not to the reader's internals.
+            assert {w.filename for w in caught} == {__file__}, [w.filename for w in caught]
+    assert len(read_wif(p).meta["warnings"]) == 3
+
+
+@needs_data
+def test_maps_keep_the_warnings_and_cached_maps_do_not_repeat_them(tmp_path):
+    from mscloth.maps.builtin import clear_cache, resolve_pattern
+    from mscloth.maps.cloth_maps import ClothMaps
+
+    p = no_units_2229(tmp_path)
+    clear_cache()
+    with pytest.warns(UserWarning, match="nounits.wif: \\[WARP\\] has no Units="):
+        maps = resolve_pattern(str(p), 48)
+    assert [w[:34] for w in maps.meta["warnings"]] == ["nounits.wif: [WARP] has no Units= ",
+                                                       "nounits.wif: [WEFT] has no Units= "]
+    # The same file at the same resolution comes from the cache: not read, so not warned again
+    # (its maps still carry the warnings, and maps.json keeps them).
+    assert wif_warnings(resolve_pattern, str(p), 48) == []
+    assert resolve_pattern(str(p), 48) is maps
+    maps.save(tmp_path / "out")
+    assert ClothMaps.load(tmp_path / "out").meta["warnings"] == maps.meta["warnings"]
+    clear_cache()
+
+
+@needs_data
+def test_real_files_warn_only_where_the_draft_is_odd():
+    """The shared handweaving.net files give Units, Spacing, Shafts and a full threading: only
+    3parallelwarps warns, as it should: its three ends all sit on shaft 1, which every pick
+    lifts or leaves down, so each pick lies over or under the whole warp."""
+    found = {stem: wif_warnings(read_wif, WIF_DIR / f"{stem}.wif") for stem in sorted(REAL)}
+    assert found.pop("3parallelwarps") == [
+        "3parallelwarps.wif: [TIEUP]: no weft pick interlaces with the warp: the treadles of every pick "
+        "lift none or all of the shafts the warp is threaded on, so each pick lies over or under every "
+        "warp end across the whole tile"]
+    assert found == {stem: [] for stem in found}

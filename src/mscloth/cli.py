@@ -12,6 +12,7 @@ from pathlib import Path
 
 from . import __version__, setup_mitsuba
 from .errors import ClothError, ResolutionError
+from .scenes.names import SCENE_NAMES
 from .scenes.pixel_sampler import DEFAULT_PIXEL_SAMPLER, PIXEL_SAMPLERS
 
 
@@ -41,15 +42,46 @@ def cmd_demo(args) -> int:
     # --out is a folder of the demo's own: its demo.exr/png are replaced on every run
     # (`make demo` twice), unlike render's --out, which names the user's file.
     check_writable(out, target=exr)
-    print(f"mscloth demo: {args.res}x{args.res}, {args.spp} spp, variant {variant}")
     scene = load_dict(demo_scene(resolution=args.res))
+    spp = _samples_taken(scene, args.spp)
+    print(f"mscloth demo: {args.res}x{args.res}, {spp} spp, variant {variant}")
     started = time.perf_counter()
     with KernelCompilation() as compiling:
-        image = render_progressive(scene, args.spp, label="demo")
+        image = render_progressive(scene, spp, label="demo")
     seconds = time.perf_counter() - started
     exr, png = write_images(image, exr)
-    print(f"wrote {exr} and {png}: {throughput_text(args.res * args.res * args.spp, seconds, compiling.seconds)}")
+    print(f"wrote {exr} and {png}: {throughput_text(args.res * args.res * spp, seconds, compiling.seconds)}")
     return 0
+
+
+def _samples_taken(scene, spp: int) -> int:
+    """The samples per pixel the scene's sampler takes for ``--spp`` (rounded up by some
+    samplers), with one warning where it differs."""
+    from .render import samples_taken
+
+    taken = samples_taken(scene, spp)
+    if taken != spp:
+        name = scene.sensors()[0].sampler().class_name()
+        warnings.warn(f"the scene's sampler ({name}) takes {taken} samples per pixel, not --spp {spp}: "
+                      f"rendering {taken}", UserWarning, stacklevel=2)
+    return taken
+
+
+def _writable_outputs(*paths: Path) -> None:
+    """ClothError unless each of ``paths`` can be written as a file: before the work that
+    makes them, naming the user's path (not a temporary file beside it). Makes no folder:
+    a command that then fails leaves nothing behind."""
+    from .atomic import check_writable
+
+    for path in paths:
+        if path.is_dir():
+            raise ClothError(f"cannot write {path}: it is a directory")
+        parent = path.parent
+        while not parent.exists() and parent != parent.parent:
+            parent = parent.parent
+        if not parent.is_dir():
+            raise ClothError(f"cannot write {path}: {parent} is a file, not a directory")
+        check_writable(parent, target=path)  # the folders below it are made as it is written
 
 
 def _resolution_arg(text: str) -> tuple[int, int]:
@@ -132,13 +164,12 @@ def load_scene_file(path: Path, res):
 def cmd_render(args) -> int:
     import mitsuba as mi
 
-    from .atomic import check_writable
     from .loading import load_dict
     from .render import KernelCompilation, render_progressive, throughput_text, write_images
     from .scenes.builtin import SCENES, builtin_scene
     from .scenes.pixel_sampler import set_pixel_sampler
 
-    out = Path(args.out)
+    out = Path(args.out) if args.out else Path("out") / f"{Path(args.scene).stem}.exr"
     if out.suffix.lower() != ".exr":
         raise ClothError(f"--out must name an .exr file (a .png is written beside it), got {out}")
     if args.scene not in SCENES and not args.scene.lower().endswith(".xml"):
@@ -153,7 +184,7 @@ def cmd_render(args) -> int:
             raise ClothError(f"{existing[0]} exists; pass --force to overwrite")
     options = _swatch_options(args, args.scene)
     variant = setup_mitsuba(args.variant)
-    check_writable(out.parent, target=out)  # before the render, not after it
+    _writable_outputs(out, out.with_suffix(".png"))  # before the render, not after it
     # Loading makes each cloth's maps, builds (or reads) its tables and compiles its
     # calibration kernels: on a first run, much of the time to the first picture
     # (bench/first_picture.py). Their compilation is not split out: Mitsuba constructs
@@ -169,14 +200,15 @@ def cmd_render(args) -> int:
         scene = load_scene_file(Path(args.scene), args.res)
     loading_seconds = time.perf_counter() - loading_started
     w, h = scene.sensors()[0].film().size()
-    print(f"mscloth render: {args.scene}, {w}x{h}, {args.spp} spp, variant {variant} "
+    spp = _samples_taken(scene, args.spp)
+    print(f"mscloth render: {args.scene}, {w}x{h}, {spp} spp, variant {variant} "
           f"(loaded in {loading_seconds:.2f} s)", flush=True)
     started = time.perf_counter()
     with KernelCompilation() as compiling:
-        image = render_progressive(scene, args.spp, label="render")
+        image = render_progressive(scene, spp, label="render")
     seconds = time.perf_counter() - started
     exr, png = write_images(image, out)
-    print(f"wrote {exr} and {png}: {throughput_text(w * h * args.spp, seconds, compiling.seconds)}")
+    print(f"wrote {exr} and {png}: {throughput_text(w * h * spp, seconds, compiling.seconds)}")
     return 0
 
 
@@ -192,7 +224,7 @@ def cmd_scene(args) -> int:
     if out.exists() and not args.force:
         raise ClothError(f"{out} exists; pass --force to overwrite")
     setup_mitsuba(args.variant)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    _writable_outputs(out)
     w, h = args.res or (512, 288)
     # Meshes and cloth maps next to the XML. Meshes are referenced relatively, so the folder
     # can be moved; maps directories by absolute path, as scene_maps returns them (relative
@@ -212,33 +244,52 @@ def cmd_scene(args) -> int:
     return 0
 
 
+#: The maps builders' parameters and the ``maps`` flags (argparse attributes) that set them.
+_MAPS_FLAGS = {"yarn_width": "yarn_width", "gap_fraction": "gap_fraction", "yarn_height": "yarn_height",
+               "fibre_twist_deg": "twist", "ply_count": "plies", "ply_twist_deg": "ply_twist"}
+
+
+def _flag(parameter: str) -> str:
+    """The ``maps`` flag of a builder parameter: ``fibre_twist_deg`` -> ``--twist``."""
+    return "--" + _MAPS_FLAGS.get(parameter, parameter).replace("_", "-")
+
+
 def cmd_maps(args) -> int:
     from .maps.builtin import default_resolution
     from .maps.generate import generate_maps
     from .maps.preview import write_previews
     from .patterns.named import named_pattern
 
-    params = {name: value for name, value in (
-        ("yarn_width", args.yarn_width), ("gap_fraction", args.gap_fraction),
-        ("yarn_height", args.yarn_height), ("fibre_twist_deg", args.twist),
-        ("ply_count", args.plies), ("ply_twist_deg", args.ply_twist)) if value is not None}
+    params = {name: getattr(args, attr) for name, attr in _MAPS_FLAGS.items() if getattr(args, attr) is not None}
     out = Path(args.out)
+    if args.ply_twist is not None and (args.plies or 1) < 2:
+        raise ClothError("--ply-twist needs --plies 2 or more (a single-ply yarn has no ply twist)")
     if args.fabric:
         from .fabrics import fabric
 
         preset = fabric(args.pattern)
         if params:
-            raise ClothError(f"--{next(iter(params)).replace('_deg', '').replace('_', '-')} does not apply to "
-                             "a fabric preset, whose yarns are part of it")
+            raise ClothError(f"{_flag(next(iter(params)))} does not apply to a fabric preset, whose yarns are "
+                             "part of it")
         resolution = args.res or preset.default_resolution()
         pattern = None
     else:
         pattern = named_pattern(args.pattern)
         resolution = args.res or default_resolution(pattern)
+    if pattern is not None:
+        from .maps.generate import generator_parameters
+
+        unused = [_flag(name) for name in params if name not in generator_parameters(pattern)]
+        if unused:
+            raise ClothError(f"{', '.join(unused)} do{'es' if len(unused) == 1 else ''} not apply to "
+                             f"{args.pattern}")
     if not args.force:
         existing = [p for p in (out / "maps.npz", out / "maps.json", out / "contact_sheet.png") if p.exists()]
         if existing:
             raise ClothError(f"{existing[0]} exists; pass --force to overwrite")
+    if out.exists() and not out.is_dir():
+        raise ClothError(f"cannot write maps to {out}: it is a file, not a directory")
+    _writable_outputs(out / "maps.json")
     started = time.perf_counter()
     print(f"mscloth maps: {args.pattern} at {resolution} texels along u ...", flush=True)
     try:
@@ -280,10 +331,15 @@ def cmd_compare(args) -> int:
         raise ClothError(f"--reference-spp must be an even number >= 2, got {args.reference_spp!r}") from None
     w, h = args.res or (320, 180)
     out = Path(args.out) if args.out else Path("out") / f"compare-{args.scene}"
+    json_path = Path(args.json) if args.json else None
+    if json_path is not None:
+        _writable_outputs(json_path)
+        if json_path.exists() and not args.force:
+            raise ClothError(f"{json_path} exists; pass --force to overwrite")
     if args.variant:
         setup_mitsuba(args.variant)
     run_compare(args.scene, w, h, budget=budget, reference_spp=reference_spp, out_dir=out,
-                json_path=Path(args.json) if args.json else None, sampler=args.sampler)
+                json_path=json_path, sampler=args.sampler)
     return 0
 
 
@@ -358,7 +414,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"mscloth {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    demo = sub.add_parser("demo", help="render the default scene (cloth sphere and plane)")
+    demo = sub.add_parser("demo", help="render the demo scene (silk charmeuse and denim drapes)")
     demo.add_argument("--out", default="out", help="output directory (default: out); its demo.exr and demo.png "
                                                    "are replaced on each run")
     demo.add_argument("--spp", type=_positive_int(1, 65536), default=64, help="samples per pixel (default 64)")
@@ -366,8 +422,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
     demo.set_defaults(func=cmd_demo)
 
-    render = sub.add_parser("render", help="render a built-in scene (swatch, plane, sphere, drape, satin, satin-plane, denim) or a Mitsuba XML file")
-    render.add_argument("scene", help="swatch, plane, sphere, drape, satin, satin-plane, denim, or a .xml file")
+    render = sub.add_parser("render", help=f"render a built-in scene ({', '.join(SCENE_NAMES)}) or a Mitsuba XML file")
+    render.add_argument("scene", help=f"{', '.join(SCENE_NAMES)}, or a .xml file")
     render.add_argument("--fabric", default=None, help="swatch: the fabric preset (default silk-charmeuse; "
                                                        "see mscloth fabrics)")
     render.add_argument("--view", default=None, choices=("close", "arm", "room"),
@@ -377,14 +433,15 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--spp", type=_positive_int(1, 65536), default=64, help="samples per pixel (default 64)")
     render.add_argument("--res", type=_resolution_arg, default=None, help="WIDTHxHEIGHT (default: the scene's)")
     render.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
-    render.add_argument("--out", default="out/render.exr", help="output EXR; a PNG is written beside it")
+    render.add_argument("--out", default=None, help="output EXR (default out/SCENE.exr: the built-in scene's "
+                                                     "name or the XML file's stem); a PNG is written beside it")
     render.add_argument("--force", action="store_true", help="overwrite an existing EXR or PNG")
     render.add_argument("--sampler", default=None, choices=PIXEL_SAMPLERS,
                         help=f"built-in scenes: the pixel sampler (default {DEFAULT_PIXEL_SAMPLER})")
     render.set_defaults(func=cmd_render)
 
     scene = sub.add_parser("scene", help="write a built-in scene as Mitsuba XML to start from")
-    scene.add_argument("name", help="swatch, plane, sphere, drape, satin, satin-plane or denim")
+    scene.add_argument("name", help=", ".join(SCENE_NAMES))
     scene.add_argument("--out", required=True, help="output .xml file")
     scene.add_argument("--res", type=_resolution_arg, default=None, help="WIDTHxHEIGHT (default 512x288)")
     scene.add_argument("--force", action="store_true", help="overwrite an existing file")
@@ -405,16 +462,18 @@ def build_parser() -> argparse.ArgumentParser:
     maps.add_argument("--yarn-height", type=float, default=None, help="crimp: centreline undulation / yarn width")
     maps.add_argument("--twist", type=float, default=None, help="fibre twist angle in degrees (S > 0, Z < 0)")
     maps.add_argument("--plies", type=int, default=None, help="plies per yarn (1-8)")
-    maps.add_argument("--ply-twist", type=float, default=None, help="ply twist angle in degrees, (0, 90)")
+    maps.add_argument("--ply-twist", type=float, default=None,
+                      help="ply twist angle in degrees, (0, 90); with --plies 2 or more")
     maps.add_argument("--fabric", action="store_true",
                       help="PATTERN names a fabric preset (mscloth fabrics): its maps at its true thread count")
     maps.set_defaults(func=cmd_maps)
 
     compare = sub.add_parser("compare", help="multi-scale vs brute-force cloth: equal-error speed-up near, middle, far")
-    compare.add_argument("scene", help="plane, sphere, drape, satin, satin-plane or denim")
+    compare.add_argument("scene", help=", ".join(SCENE_NAMES))
     compare.add_argument("--budget", default="60", help="render seconds for both convergence curves together (default 60)")
     compare.add_argument("--res", type=_resolution_arg, default=None, help="WIDTHxHEIGHT (default 320x180)")
     compare.add_argument("--json", default=None, help="write the figures as JSON to this file")
+    compare.add_argument("--force", action="store_true", help="overwrite an existing --json file")
     compare.add_argument("--out", default=None, help="report directory (default out/compare-SCENE); "
                                                      "its report is replaced on each run")
     compare.add_argument("--reference-spp", default="1024", help="spp of the brute-force reference (default 1024)")
@@ -454,3 +513,10 @@ def main(argv=None) -> int:
         except OSError as error:
             print(f"mscloth: error: {error}", file=sys.stderr)
             return 2
+        except (KeyboardInterrupt, RuntimeError) as error:
+            from .render import interrupted
+
+            if not interrupted(error):
+                raise
+            print("\nmscloth: interrupted; nothing written", file=sys.stderr)
+            return 130

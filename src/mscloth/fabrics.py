@@ -24,19 +24,22 @@ the BSDF multiplies every lobe's albedo by them.
 """
 from __future__ import annotations
 
+import contextvars
 import dataclasses
 import difflib
 import functools
 import json
 import math
+import numbers
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from .errors import ParameterError
-from .maps.generator_support import srgb_to_linear
+from .errors import ClothError, ParameterError, ResolutionError
+from .maps.generator_support import srgb_to_linear, tile_resolution
 
 #: Texels along one warp end (knits: one wale) in a preset's maps when the caller gives no
 #: resolution: enough for the yarn's cross-section and its twisted fibres.
@@ -86,8 +89,11 @@ class Fabric:
     gap_fraction: float = field(init=False, default=0.0)
 
     def __post_init__(self):
-        if self.structure not in ("woven", "knit"):
-            raise ParameterError(f"fabric {self.name!r}: structure must be 'woven' or 'knit'")
+        # Every value is checked here, before any map is built from it: a bad one would
+        # otherwise surface deep in the map builders under another name (or not at all).
+        loading = _LOADING.get()
+        where, base = loading if loading else (f"fabric {self.name!r}", None)
+        _check_fields(self, where, base)
         object.__setattr__(self, "gap_fraction", self._gap_fraction())
 
     # ------------------------------------------------------------------ geometry
@@ -249,6 +255,230 @@ def _fabric_maps(fabric: Fabric, resolution: int):
     return maps
 
 
+# ---------------------------------------------------------------------------- validation
+#: Ranges of the number fields: (lowest, highest, lowest excluded, highest excluded). The
+#: BSDF's mirror the ``cloth`` plugin's own (bsdf/parameters.py), which takes a preset's
+#: values unchecked; the maps' are what woven_maps / knit_maps accept.
+FIELD_RANGES: dict[str, tuple[float, float, bool, bool]] = {
+    "ends_per_cm": (0.0, math.inf, True, True),
+    "picks_per_cm": (0.0, math.inf, True, True),
+    "fibre_twist_deg": (-90.0, 90.0, False, False),
+    "ply_twist_deg": (0.0, 90.0, True, True),
+    "slub_spacing_mm": (0.0, math.inf, True, True),
+    "slub_tone": (0.5, 2.0, False, False),
+    "profile_exponent": (1.0, 16.0, False, False),
+    "float_arch": (0.0, 1.0, False, False),
+    "roughness": (0.0, 1.0, True, False),
+    "thickness": (0.0, 1e3, True, False),
+    "specular_albedo": (0.0, 1.0, False, False),
+    "specular_transmittance": (0.0, 1.0, False, False),
+    "diffuse_albedo": (0.0, 1.0, False, False),
+    "diffuse_transmittance": (0.0, 1.0, False, False),
+    "sheen_roughness": (0.0, 1.0, True, False),
+    "sheen_thickness": (0.0, 1e3, False, False),
+}
+#: A knit's course / wale spacing (ends_per_cm / picks_per_cm): knit_maps' loop_aspect.
+_KNIT_LOOP_ASPECT = (0.3, 3.0)
+#: A yarn this many times wider than its spacing is flattened to the spacing by the maps:
+#: more than a little is likely a unit slip (diameters are in mm), so it is warned about.
+_WIDE_YARN = 2.0
+
+#: While :func:`load_fabric_file` builds a Fabric: (how errors name it, the base preset
+#: its structure came from, if any).
+_LOADING: contextvars.ContextVar[tuple[str, str | None] | None] = contextvars.ContextVar(
+    "mscloth_fabric_loading", default=None)
+#: The .json files whose ``"base"`` is being loaded, outermost first: (resolved path, as
+#: written), so that a chain of bases coming back to one of them is an error, not a recursion.
+_BASE_CHAIN: contextvars.ContextVar[tuple[tuple[str, str], ...]] = contextvars.ContextVar(
+    "mscloth_fabric_base_chain", default=())
+
+
+def _bad(where: str, key: str, expected: str, value) -> ParameterError:
+    return ParameterError(f"{where}: field {key!r} must be {expected}, got {value!r}")
+
+
+def _interval(lo: float, hi: float, lo_open: bool, hi_open: bool) -> str:
+    if hi == math.inf:
+        return f"{'>' if lo_open else '>='} {lo:g}"
+    return f"in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def _real(where: str, key: str, value, lo: float, hi: float, lo_open: bool, hi_open: bool,
+          note: str = "") -> float:
+    """``value`` as a finite float in the interval, or a ParameterError naming ``key``."""
+    expected = _interval(lo, hi, lo_open, hi_open) + note
+    if not _is_number(value):
+        raise _bad(where, key, f"a number {expected}", value)
+    x = float(value)
+    if not math.isfinite(x) or (x <= lo if lo_open else x < lo) or (x >= hi if hi_open else x > hi):
+        raise _bad(where, key, expected, value)
+    return x
+
+
+def _integer(where: str, key: str, value, lo: int, hi: float) -> int:
+    """A whole number in [lo, hi] (JSON's 2.0 too), as an int."""
+    if not _is_number(value) or not float(value).is_integer() or not lo <= value <= hi:
+        raise _bad(where, key, f"a whole number {_interval(lo, hi, False, False)}", value)
+    return int(value)
+
+
+def _sequence(value) -> tuple | None:
+    return tuple(value) if isinstance(value, (tuple, list, np.ndarray)) else None
+
+
+def _one_or_pair(where: str, key: str, value, check) -> float | int | tuple:
+    """A number for both (warp, weft) / (across, down), or a pair of them, each through
+    ``check``; a list becomes a tuple (a Fabric is hashed: its maps are cached)."""
+    items = _sequence(value)
+    if items is None:
+        return check(value)
+    if len(items) != 2:
+        raise _bad(where, key, "a number or a pair of numbers", value)
+    return tuple(check(v) for v in items)
+
+
+def _colour(where: str, key: str, value) -> tuple[float, float, float]:
+    items = _sequence(value)
+    if (items is None or len(items) != 3 or not all(_is_number(c) and 0.0 <= c <= 1.0 for c in items)):
+        raise _bad(where, key, "an sRGB triple [r, g, b] of numbers in [0, 1] (as a colour picker "
+                               "gives them, divided by 255)", value)
+    return tuple(float(c) for c in items)
+
+
+def _pattern_kinds() -> dict[bool, str]:
+    """{woven?: the named patterns of that kind}, for errors."""
+    from .patterns.draft import Draft
+    from .patterns.named import NAMED, named_pattern
+
+    kinds = {True: [], False: []}
+    for key, (_, _, help_text) in NAMED.items():
+        kinds[isinstance(named_pattern(key), Draft)].append(help_text.split()[0].rstrip(","))
+    kinds[True].append("a .wif file")
+    return {woven: ", ".join(names) for woven, names in kinds.items()}
+
+
+def _check_pattern(fabric: Fabric, where: str, base: str | None) -> None:
+    """The pattern exists and is of the fabric's structure (a weave for woven, a knit)."""
+    from .patterns.draft import Draft
+    from .patterns.named import named_pattern
+
+    if not isinstance(fabric.pattern, str) or not fabric.pattern:
+        raise _bad(where, "pattern", "a pattern name such as 'twill-2-1' or 'rib-2-2', or a .wif file",
+                   fabric.pattern)
+    try:
+        woven = isinstance(named_pattern(fabric.pattern), Draft)
+    except ClothError as error:
+        raise ParameterError(f"{where}: field 'pattern': {error}") from None
+    if woven != (fabric.structure == "woven"):
+        origin = f" (from base {base!r})" if base else ""
+        want = fabric.structure == "woven"
+        raise ParameterError(
+            f"{where}: field 'pattern' {fabric.pattern!r} is a {'weave' if woven else 'knit'}, but field "
+            f"'structure' is {fabric.structure!r}{origin}: give a {'weave' if want else 'knit'} "
+            f"pattern ({_pattern_kinds()[want]}) or \"structure\": \"{'woven' if woven else 'knit'}\"")
+
+
+def _check_tile(fabric: Fabric, where: str) -> None:
+    """The maps of the fabric's tile can be built at its default resolution (enough texels
+    for each thread or stitch, each way)."""
+    from .patterns.named import named_pattern
+
+    if fabric.structure == "woven":
+        from .maps.woven import MIN_TEXELS_PER_THREAD as least
+
+        n_weft, n_warp = named_pattern(fabric.pattern).drawdown.shape
+        across, down = fabric._repeats()
+        counts, kinds = (n_weft * down, n_warp * across), ("weft picks", "warp ends")
+        aspect = (counts[0] / fabric.picks_per_cm) / (counts[1] / fabric.ends_per_cm)
+    else:
+        from .maps.knit import MIN_TEXELS_PER_STITCH as least
+
+        counts, kinds = _knit_pattern(fabric).stitches.shape, ("courses", "wales")
+        aspect = counts[0] * (fabric.ends_per_cm / fabric.picks_per_cm) / counts[1]
+    try:
+        tile_resolution(fabric.default_resolution(), aspect, tuple(counts), least, kinds)
+    except ResolutionError as error:
+        raise ParameterError(
+            f"{where}: fields 'repeat', 'texels_per_thread', 'ends_per_cm' and 'picks_per_cm' give a "
+            f"tile of {counts[1]} {kinds[1]} x {counts[0]} {kinds[0]} that its default maps "
+            f"({fabric.default_resolution()} texels across) cannot hold: {error}") from None
+
+
+def _check_fields(fabric: Fabric, where: str, base: str | None) -> None:
+    """Raise a ParameterError naming the first field of ``fabric`` out of range (``where``:
+    the fabric or its file), warn of yarns far wider than their spacing, and make lists
+    tuples."""
+    def keep(key: str, value) -> None:
+        object.__setattr__(fabric, key, value)
+
+    for key in ("name", "title", "source", "look"):
+        value = getattr(fabric, key)
+        if not isinstance(value, str) or (key == "name" and not value):
+            raise _bad(where, key, "a non-empty string" if key == "name" else "a string", value)
+    if fabric.structure not in ("woven", "knit"):
+        raise _bad(where, "structure", "'woven' or 'knit'", fabric.structure)
+    woven = fabric.structure == "woven"
+    for key, (lo, hi, lo_open, hi_open) in FIELD_RANGES.items():
+        _real(where, key, getattr(fabric, key), lo, hi, lo_open, hi_open)
+    if not woven:
+        lo, hi = _KNIT_LOOP_ASPECT
+        ratio = fabric.ends_per_cm / fabric.picks_per_cm
+        if not lo <= ratio <= hi:
+            raise ParameterError(
+                f"{where}: fields 'ends_per_cm' / 'picks_per_cm' (wales / courses per cm) of a knit must "
+                f"be in [{lo:g}, {hi:g}] (the loops' shape), got {fabric.ends_per_cm:g} / "
+                f"{fabric.picks_per_cm:g} = {ratio:.3g}")
+    # Woven maps need a slope: an inclination of 0 would flatten the weave (yarn_height 0).
+    _real(where, "inclination_deg", fabric.inclination_deg, 0.0, 90.0, woven, True, " degrees")
+    _check_pattern(fabric, where, base)
+
+    expected = ("one diameter in mm (warp and weft) or a (warp, weft) pair" if woven
+                else "one diameter in mm (a knit has one yarn)")
+    diameters = _sequence(fabric.yarn_diameter_mm)
+    if diameters is None:
+        diameters = (fabric.yarn_diameter_mm,)
+    if not 1 <= len(diameters) <= (2 if woven else 1) or not all(_is_number(d) for d in diameters):
+        raise _bad(where, "yarn_diameter_mm", expected, fabric.yarn_diameter_mm)
+    keep("yarn_diameter_mm", tuple(_real(where, "yarn_diameter_mm", d, 0.0, math.inf, True, True, " mm")
+                                   for d in diameters))
+    spacings = (("warp", fabric.warp_spacing_mm), ("weft", fabric.weft_spacing_mm)) if woven else \
+        (("yarn", fabric.warp_spacing_mm),)  # a knit's yarn against its wale spacing
+    wide = [f"the {family} yarn ({diameter:g} mm) is {diameter / spacing:.3g}x its spacing ({spacing:.3g} mm)"
+            for (family, spacing), diameter in zip(spacings, fabric._diameters()) if diameter > _WIDE_YARN * spacing]
+    if wide:
+        warnings.warn(f"{where}: field 'yarn_diameter_mm': {', '.join(wide)}; the maps flatten a yarn "
+                      "to its spacing (diameters are in mm)", stacklevel=4)
+
+    for key in ("warp_color", "weft_color", "sheen_color"):
+        keep(key, _colour(where, key, getattr(fabric, key)))
+    total = fabric.diffuse_albedo + fabric.diffuse_transmittance + max(
+        fabric.specular_albedo, fabric.specular_transmittance)
+    if total > 1.0 + 1e-6:
+        raise ParameterError(
+            f"{where}: fields 'diffuse_albedo' + 'diffuse_transmittance' + max('specular_albedo', "
+            f"'specular_transmittance') must be <= 1 (the cloth cannot reflect more light than it "
+            f"receives), got {total:.3g}")
+
+    keep("ply", _integer(where, "ply", fabric.ply, 1, 8))
+    keep("texels_per_thread", _integer(where, "texels_per_thread", fabric.texels_per_thread, 2, MAX_TILE_TEXELS))
+    keep("repeat", _one_or_pair(where, "repeat", fabric.repeat,
+                                lambda v: _integer(where, "repeat", v, 1, math.inf)))
+    keep("slub", _one_or_pair(where, "slub", fabric.slub,
+                              lambda v: _real(where, "slub", v, 0.0, 4.0, False, False)))
+    lengths = _sequence(fabric.slub_length_mm)
+    if lengths is None or len(lengths) != 2:
+        raise _bad(where, "slub_length_mm", "(shortest, longest) in mm", fabric.slub_length_mm)
+    lengths = tuple(_real(where, "slub_length_mm", v, 0.0, math.inf, True, True, " mm") for v in lengths)
+    if lengths[0] > lengths[1]:
+        raise _bad(where, "slub_length_mm", "(shortest, longest) in mm", fabric.slub_length_mm)
+    keep("slub_length_mm", lengths)
+    _check_tile(fabric, where)
+
+
 # ---------------------------------------------------------------------------- the presets
 _SILK_LOOK = "a continuous lustre band along the long warp floats, moving with the light"
 
@@ -407,8 +637,9 @@ def fabric_names() -> list[str]:
 
 def load_fabric_file(path: str | os.PathLike) -> Fabric:
     """A preset from a JSON file: an object of :class:`Fabric` fields, optionally starting
-    from ``"base"`` (a preset name) so that it need only say what differs; ``name``
-    defaults to the file's stem. Errors name the file and the field."""
+    from ``"base"`` (a preset name, or a .json fabric file beside this one) so that it need
+    only say what differs; ``name`` defaults to the file's stem. Every value is checked as
+    the Fabric is built; errors name the file and the field."""
     path = Path(path)
     try:
         data = json.loads(path.read_text())
@@ -420,7 +651,7 @@ def load_fabric_file(path: str | os.PathLike) -> Fabric:
         raise ParameterError(f"fabric file {path}: expected a JSON object of Fabric fields")
     fields = {f.name: f for f in dataclasses.fields(Fabric) if f.init}
     base_name = data.pop("base", None)
-    base = fabric(base_name) if base_name is not None else None
+    base = _load_base(path, base_name) if base_name is not None else None
     values = {"name": path.stem}
     for key, value in data.items():
         if key not in fields:
@@ -437,10 +668,47 @@ def load_fabric_file(path: str | os.PathLike) -> Fabric:
             kind = "a number or a pair of numbers" if key in _PAIR_FIELDS else "a number"
             raise ParameterError(f"fabric file {path}: field {key!r} must be {kind}, got {value!r}")
         values[key] = value
+    # Fabric's own checks then name the file (and the base a mismatched pattern's
+    # structure came from).
+    token = _LOADING.set((f"fabric file {path}", base_name if "structure" not in data else None))
     try:
         return dataclasses.replace(base, **values) if base is not None else Fabric(**values)
     except TypeError as error:  # a field missing without a base
         raise ParameterError(f"fabric file {path}: {error} (or give \"base\": a preset name)") from None
+    finally:
+        _LOADING.reset(token)
+
+
+def _load_base(path: Path, base_name) -> Fabric:
+    """The ``"base"`` of the fabric file ``path``: a preset, or a .json file beside it (else
+    in the working directory); a chain of files that comes back to one of them is an error
+    naming the chain."""
+    where = f"fabric file {path}"
+    if not isinstance(base_name, str) or not base_name:
+        raise _bad(where, "base", "a preset name or a .json fabric file", base_name)
+    if not base_name.lower().endswith(".json"):
+        try:
+            return fabric(base_name)
+        except ParameterError as error:
+            raise ParameterError(f"{where}: field 'base': {error}") from None
+    located = Path(base_name)
+    if not located.is_absolute() and (path.parent / located).is_file():
+        located = path.parent / located
+    if not located.is_file():
+        raise ParameterError(f"{where}: field 'base': fabric file {base_name!r} does not exist "
+                             f"(beside {path.name} or in the working directory)")
+    me, target = str(path.resolve()), str(located.resolve())
+    chain = _BASE_CHAIN.get()
+    if not chain or chain[-1][0] != me:  # not itself a base being loaded: a chain starts here
+        chain = ((me, str(path)),)
+    if any(target == loaded for loaded, _ in chain):
+        cycle = " -> ".join([shown for _, shown in chain] + [base_name])
+        raise ParameterError(f"fabric file {chain[0][1]}: field 'base' makes a cycle: {cycle}")
+    token = _BASE_CHAIN.set(chain + ((target, base_name),))
+    try:
+        return fabric(str(located))
+    finally:
+        _BASE_CHAIN.reset(token)
 
 
 def fabric(name: str, locate=None) -> Fabric:

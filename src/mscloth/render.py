@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import gc
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -79,10 +81,48 @@ def pass_count(pixels: int, spp: int, passes: int | None = None) -> int:
     return passes
 
 
+def samples_taken(scene, spp: int) -> int:
+    """The samples per pixel ``scene``'s sampler takes when asked for ``spp`` (a
+    ``multijitter`` or ``stratified`` sampler rounds up: 10 -> 12), asked quietly."""
+    from .integrators.sky_share_pilot import render_sample_count
+
+    return render_sample_count(scene.sensors()[0], spp)
+
+
+def interrupted(error: BaseException) -> bool:
+    """Whether ``error`` is Ctrl-C: a KeyboardInterrupt, or an error raised because of one
+    (Dr.Jit wraps one raised in a Python integrator's render in a RuntimeError)."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, KeyboardInterrupt):
+            return True
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return False
+
+
+class _InterruptWatch(mi.Appender):
+    """Notices Ctrl-C during a render. Mitsuba takes SIGINT while it renders and cancels the
+    pass; around a Python integrator (its render nested in Mitsuba's) it also swallows the
+    signal, so Python never raises KeyboardInterrupt. Its warning still passes the log."""
+
+    def __init__(self):
+        super().__init__()
+        self.interrupted = False
+
+    def append(self, level, text):
+        if "Received interrupt signal" in text:
+            self.interrupted = True
+
+    def log_progress(self, *args):
+        pass
+
+
 def render_progressive(scene, spp: int, passes: int | None = None, seed: int = 0,
                        label: str = "render", quiet: bool = False):
-    """Render ``spp`` samples per pixel in passes (showing progress; :func:`pass_count`);
-    return the mean image.
+    """Render ``spp`` samples per pixel in passes (showing progress; :func:`pass_count`,
+    fewer where a pass's count would not be one the scene's sampler takes); return the mean
+    image. Ctrl-C stops it after the pass it interrupts: KeyboardInterrupt.
 
     Each pass is an independent render with its own seed, so the average equals
     one render at the full sample count in expectation.
@@ -91,18 +131,38 @@ def render_progressive(scene, spp: int, passes: int | None = None, seed: int = 0
         raise ValueError(f"spp must be >= 1, got {spp}")
     size = scene.sensors()[0].film().crop_size()
     passes = pass_count(int(size[0]) * int(size[1]), spp, passes)
+    # (A sampler that rounds a pass's count up would render more than spp in all.)
+    while passes > 1 and (spp % passes or samples_taken(scene, spp // passes) != spp // passes):
+        passes -= 1
     per_pass = spp // passes
     # Free unreachable plugin instances first: Dr.Jit traces a virtual call through every
     # registered BSDF, and one freed by the garbage collector mid-trace crashes it.
     gc.collect()
+    main_thread = threading.current_thread() is threading.main_thread()
+    handler = signal.getsignal(signal.SIGINT) if main_thread else None
+    watch = _InterruptWatch()
+    logger = mi.logger()
+    logger.add_appender(watch)
     started = time.perf_counter()
     total = None
-    for i in range(passes):
-        img = mi.render(scene, spp=per_pass, seed=seed + i)
-        total = img if total is None else total + img
-        dr.eval(total)
-        if not quiet:
-            progress_bar(i + 1, passes, started, label)
+    try:
+        for i in range(passes):
+            try:
+                img = mi.render(scene, spp=per_pass, seed=seed + i)
+            except RuntimeError as error:
+                if interrupted(error):
+                    raise KeyboardInterrupt from None
+                raise
+            if handler is not None:  # (Mitsuba's handler may stay installed after it)
+                signal.signal(signal.SIGINT, handler)
+            if watch.interrupted:
+                raise KeyboardInterrupt
+            total = img if total is None else total + img
+            dr.eval(total)
+            if not quiet:
+                progress_bar(i + 1, passes, started, label)
+    finally:
+        logger.remove_appender(watch)
     return total / passes
 
 

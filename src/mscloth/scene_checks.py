@@ -5,6 +5,8 @@ Checked once a scene is loaded by :mod:`mscloth.loading` or ``mscloth render``:
 * a mesh without UVs under ``cloth``: Mitsuba then gives each triangle barycentric UVs, so
   every triangle holds a squeezed copy of the tile and the weave blurs to nothing. Analytic
   shapes (sphere, disk, cylinder, rectangle) have parametric UVs.
+* a mesh under ``cloth`` with non-finite UVs (NaN or infinite in its file): the cloth is
+  shaded there as at uv (0, 0) (``cloth`` guards its table reads against them).
 * a multi-scale ``cloth`` under an integrator that hands BSDFs no pixel footprints
   (Mitsuba's ``path`` drops ray differentials): it is then shaded at points, with about 4x
   the noise of ``clothpath``.
@@ -15,6 +17,8 @@ from __future__ import annotations
 
 import re
 import warnings
+
+import numpy as np
 
 from .plugin_registry import registered_class
 
@@ -61,13 +65,17 @@ def scene_problems(scene) -> list[str]:
     cloth = registered_class("cloth")
     if cloth is None:
         return []
-    without_uvs, multiscale = [], []
+    without_uvs, non_finite, multiscale = [], [], []
     for index, shape in enumerate(scene.shapes()):
         bsdf = shape.bsdf()
         if not isinstance(bsdf, cloth):
             continue
         if shape.is_mesh() and not shape.has_vertex_texcoords():
             without_uvs.append(shape_name(shape, index))
+        elif shape.is_mesh():
+            bad = int(np.count_nonzero(~np.isfinite(np.asarray(shape.vertex_texcoords_buffer()))))
+            if bad:
+                non_finite.append(f"{shape_name(shape, index)} ({bad} non-finite)")
         if bsdf.footprint_shading:
             multiscale.append(shape_name(shape, index))
     problems = []
@@ -75,6 +83,10 @@ def scene_problems(scene) -> list[str]:
         problems.append(
             f"cloth on {_listed(without_uvs)}, a mesh without UV coordinates: Mitsuba gives each "
             "triangle its own barycentric UVs and the weave blurs to nothing; give the mesh UVs")
+    if non_finite:
+        problems.append(
+            f"cloth on {_listed(non_finite)}, a mesh with NaN or infinite UV coordinates: the cloth is "
+            "shaded there as at uv (0, 0); fix the mesh's UVs")
     # No integrator in the scene: the one given to mi.render is not known here.
     integrator = scene.integrator()
     if multiscale and integrator is not None and not _hands_footprints(integrator):

@@ -31,7 +31,8 @@ from .lobe_calibration import LobeCalibration, calibrate
 from .lobe_mixture import LobeSamplers
 from .lobes import component_flags, enabled_lobes
 from .parameter_docs import DOCSTRING  # generated from the one parameter table
-from .parameters import (EXPOSED, FLOAT_PARAMETERS, _check_float, cloth_maps, constant_channels, exposure_flags,
+from .parameters import (ENERGY_PARAMETERS, EXPOSED, FLOAT_PARAMETERS, SPECTRUM_PARAMETERS, _check_float,
+                         check_energy, check_spectrum, cloth_maps, constant_channels, exposure_flags,
                          read_parameters, uv_scales, with_flags_column)
 
 
@@ -318,12 +319,20 @@ def make_cloth_class():
 
         def parameters_changed(self, keys=[]):
             """After ``params.update()``: every changed float is checked and made opaque
-            again; a changed fuzz rebuilds the samplers; a changed roughness rebuilds what
-            was built from it (the tables where shading reads them, then the calibration),
-            as a BSDF loaded with it would have. Other parameters are read live. No keys:
-            all of them may have changed (Mitsuba's convention)."""
+            again; every changed albedo (a texture: its value, its data, a checkerboard's
+            colours) is checked as the constructor checks it, in [0, 1] and within the
+            energy bound; a changed fuzz rebuilds the samplers; a changed roughness rebuilds
+            what was built from it (the tables where shading reads them, then the
+            calibration), as a BSDF loaded with it would have. Other parameters are read
+            live. No keys: all of them may have changed (Mitsuba's convention)."""
             changed = set(keys) if keys else set(EXPOSED)
             where = f"cloth [{self.label}]"
+            textures = self.params.textures
+            bounds = {name: check_spectrum(name, textures[name], where) for name in SPECTRUM_PARAMETERS
+                      if name in changed}
+            if changed & set(ENERGY_PARAMETERS):
+                check_energy({name: bounds[name] if name in bounds else check_spectrum(name, textures[name], where)
+                              for name in ENERGY_PARAMETERS}, where)
             self.shading.sky_table = None  # built from every parameter: again on request
             self._sky_tables = {}
             for name in FLOAT_PARAMETERS:

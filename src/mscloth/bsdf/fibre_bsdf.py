@@ -116,6 +116,9 @@ class FibreBSDF:
         # Texel coordinates of si.uv: one tile is tile_w x tile_h texels.
         x = si.uv.x * p.uv_scale * tile.width.f
         y = si.uv.y * p.uv_scale_v * tile.height.f
+        # A mesh's non-finite uv (the loader refuses them; user code may not) shades as
+        # texel (0, 0) rather than spreading NaN through the tables' arithmetic.
+        x, y = dr.select(dr.isfinite(x), x, 0.0), dr.select(dr.isfinite(y), y, 0.0)
         if self.use_parallax:
             # Look up (and centre the footprint on) the texel the view ray reaches
             # first in the height field; the table covers the front side only.

@@ -151,7 +151,10 @@ FLAGS_NOTE = (
     "differentiable where evaluating the BSDF reads it live; `roughness` is also baked into the "
     "footprint's directional tables, so with `multiscale` it carries no gradient, and changing it "
     "rebuilds those tables (cached) and the lobe calibration. Parameters marked — are read once: "
-    "reload the scene to change them.")
+    "reload the scene to change them. A texture given for a spectrum is a `bitmap` or a "
+    "`checkerboard` (of constants, bitmaps or checkerboards): textures whose values can be bounded, "
+    "since the albedos are checked, when loaded and after `params.update()`, to lie in [0, 1] and "
+    "to create no light.")
 
 
 def to_rst(text: str) -> str:

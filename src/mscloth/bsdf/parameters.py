@@ -252,29 +252,119 @@ def constant_channels(texture) -> np.ndarray:
     return value[:3] if value.size >= 3 else np.full(3, value[0])
 
 
-def texture_channel_bounds(texture) -> np.ndarray:
-    """Per-channel upper bound of a texture's values (exact when not spatially varying)."""
-    if not texture.is_spatially_varying():
-        return constant_channels(texture)
+#: Procedural textures each of whose values is one of their child textures' values (Mitsuba's
+#: ``checkerboard`` selects ``color0`` or ``color1`` per point, nothing in between):
+#: class name -> those children. Their range is the union of the children's.
+SELECTING_TEXTURES = {"Checkerboard": ("color0", "color1")}
+
+#: Textures whose values come from the shape they are on, yet that say they do not vary in
+#: space (so evaluating them anywhere would give a bound of 0): their range is unknown.
+SHAPE_TEXTURES = {"MeshAttribute"}
+
+#: What a texture must be for its range to be known (the end of an error's hint).
+BOUNDED_TEXTURES = "a float, RGB, bitmap or checkerboard"
+
+#: The spectrum parameters in the energy bound (see :func:`check_energy`).
+ENERGY_PARAMETERS = ("diffuse_albedo", "diffuse_transmittance", "specular_albedo", "specular_transmittance")
+
+
+def texture_name(texture) -> str:
+    """A texture's class name (``Checkerboard``, ``BitmapTexture``), for one-line messages:
+    its ``str()`` spans several lines."""
     try:
-        return np.full(3, float(texture.max()))
-    except RuntimeError:
-        pass
-    # Bitmaps do not implement max(): read their data.
-    for key, value in mi.traverse(texture).items():
-        if key.endswith("data"):
-            data = np.array(value)
-            return data.reshape(-1, data.shape[-1]).max(axis=0)[:3] if data.ndim >= 3 else np.full(3, data.max())
-    raise ParameterError(f"cloth: cannot bound the values of texture {texture}; use a float, RGB or bitmap")
+        return texture.class_name()
+    except (AttributeError, RuntimeError):
+        return type(texture).__name__
 
 
-def _texture_min(texture) -> float:
-    if not texture.is_spatially_varying():
-        return float(constant_channels(texture).min())
-    for key, value in mi.traverse(texture).items():
-        if key.endswith("data"):
-            return float(np.array(value).min())
-    return 0.0  # textures without data (procedural) are checked against their max only
+def _child_textures(texture) -> dict:
+    """The textures a texture's ``traverse`` hands over, by name (``color0``, ...)."""
+
+    class Children(mi.TraversalCallback):
+        def __init__(self):
+            super().__init__()
+            self.textures = {}
+
+        def put(self, name, value, flags, cpptype=None):
+            if isinstance(value, mi.Texture):
+                self.textures[name] = value
+
+    children = Children()
+    texture.traverse(children)
+    return children.textures
+
+
+class UnboundedTexture(Exception):
+    """A texture whose range cannot be known cheaply: ``path`` names it, inside the textures
+    that hold it (``Checkerboard > MeshAttribute``)."""
+
+    def __init__(self, path: str):
+        super().__init__(path)
+        self.path = path
+
+
+def texture_channel_range(texture):
+    """(lowest value, per-channel upper bound) of a texture's values: exact when it does
+    not vary in space, a bitmap's data, a checkerboard's children's. UnboundedTexture
+    where it cannot be known cheaply (procedural textures other than
+    :data:`SELECTING_TEXTURES`, :data:`SHAPE_TEXTURES`)."""
+    name = texture_name(texture)
+    with dr.suspend_grad():
+        if name in SHAPE_TEXTURES:
+            raise UnboundedTexture(name)
+        if not texture.is_spatially_varying():
+            channels = constant_channels(texture)
+            return float(channels.min()), channels
+        if name in SELECTING_TEXTURES:
+            found = _child_textures(texture)
+            ranges = []
+            for child in SELECTING_TEXTURES[name]:
+                try:
+                    ranges.append(texture_channel_range(found[child]))
+                except UnboundedTexture as error:
+                    raise UnboundedTexture(f"{name} > {error.path}") from None
+            return min(r[0] for r in ranges), np.maximum.reduce([r[1] for r in ranges])
+        data = next((np.array(value) for key, value in mi.traverse(texture).items() if key.endswith("data")), None)
+        try:
+            upper = np.full(3, float(texture.max()))
+        except RuntimeError:
+            # Bitmaps do not implement max(): read their data.
+            if data is None:
+                raise UnboundedTexture(name) from None
+            upper = data.reshape(-1, data.shape[-1]).max(axis=0)[:3] if data.ndim >= 3 else np.full(3, data.max())
+        # Textures without data (procedural) are checked against their max only.
+        return (0.0 if data is None else float(data.min())), upper
+
+
+def check_spectrum(name, texture, where="cloth") -> np.ndarray:
+    """The per-channel upper bound of spectrum parameter ``name``'s ``texture``, if its
+    values lie in [0, 1] and are finite, else a ParameterError naming ``where`` (the
+    plugin, or which cloth), the parameter and its range."""
+    meaning = SPECTRUM_PARAMETERS[name][1]
+    try:
+        lower, upper = texture_channel_range(texture)
+    except UnboundedTexture as error:
+        raise ParameterError(f"{where}: parameter '{name}' ({meaning}): cannot bound the values of texture "
+                             f"{error.path}; use {BOUNDED_TEXTURES}") from None
+    if not (math.isfinite(lower) and lower >= 0.0 and np.all(np.isfinite(upper)) and np.all(upper <= 1.0)):
+        raise ParameterError(f"{where}: parameter '{name}' ({meaning}) must lie in [0, 1] in every channel, "
+                             f"got values in [{lower:g}, {upper.max():g}]")
+    return upper
+
+
+def check_energy(bounds, where="cloth") -> None:
+    """Raise ParameterError if the upper ``bounds`` (name -> per-channel bound) of the
+    :data:`ENERGY_PARAMETERS` let the cloth reflect more light than it receives. Single
+    scattering returns at most max(k_rs, k_ts) (its R + T < 1), the diffuse lobes
+    k_rd + k_td; their sum must not exceed 1."""
+    total = bounds["diffuse_albedo"] + bounds["diffuse_transmittance"] + np.maximum(
+        bounds["specular_albedo"], bounds["specular_transmittance"])
+    if np.any(total > 1.0 + 1e-6):
+        ch = int(np.argmax(total))
+        raise ParameterError(
+            f"{where}: diffuse_albedo + diffuse_transmittance + max(specular_albedo, specular_transmittance) "
+            f"must be <= 1 in every channel so the cloth cannot reflect more light than it receives; "
+            f"got {total[ch]:.3g} in channel {'RGB'[ch]} (defaults: 0.4 + 0.1 + max(0.4, 0.2) = 0.9)")
 
 
 def _preset_texture(value):
@@ -337,25 +427,9 @@ def read_parameters(props) -> ClothParameters:
             reason = str(error).strip().splitlines()[-1]
             raise ParameterError(f"cloth: parameter '{name}' ({meaning}) must lie in [0, 1] "
                                  f"in every channel: {reason}") from None
-        upper = texture_channel_bounds(texture)
-        lower = _texture_min(texture)
-        if lower < 0.0 or np.any(upper > 1.0) or not np.all(np.isfinite(upper)):
-            raise ParameterError(
-                f"cloth: parameter '{name}' ({meaning}) must lie in [0, 1] in every channel, "
-                f"got values in [{lower:g}, {upper.max():g}]")
+        bounds[name] = check_spectrum(name, texture)
         textures[name] = texture
-        bounds[name] = upper
-
-    # Energy: single scattering returns at most max(k_rs, k_ts) (its R + T < 1), the
-    # diffuse lobes k_rd + k_td; their sum must not exceed 1 or the cloth creates light.
-    total = bounds["diffuse_albedo"] + bounds["diffuse_transmittance"] + np.maximum(
-        bounds["specular_albedo"], bounds["specular_transmittance"])
-    if np.any(total > 1.0 + 1e-6):
-        ch = int(np.argmax(total))
-        raise ParameterError(
-            "cloth: diffuse_albedo + diffuse_transmittance + max(specular_albedo, specular_transmittance) "
-            f"must be <= 1 in every channel so the cloth cannot reflect more light than it receives; "
-            f"got {total[ch]:.3g} in channel {'RGB'[ch]} (defaults: 0.4 + 0.1 + max(0.4, 0.2) = 0.9)")
+    check_energy(bounds)
 
     switches = {}
     for name, (default, meaning) in BOOL_PARAMETERS.items():

@@ -170,9 +170,16 @@ def pilot_pixels(sensor) -> tuple[np.ndarray, np.ndarray]:
 def render_sample_count(sensor, spp: int) -> int:
     """The samples per pixel a render asked for ``spp`` takes with ``sensor``'s sampler (a
     stratified sampler rounds up to a square: 128 -> 144), which the pilot renders with
-    and keeps its share by."""
+    and keeps its share by. Asked quietly: Mitsuba warns of each rounded count, and the
+    render that asked warns once itself."""
     sampler = sensor.sampler().clone()
-    sampler.set_sample_count(int(spp))
+    logger = mi.logger()
+    level = logger.log_level()
+    logger.set_log_level(mi.LogLevel.Error)
+    try:
+        sampler.set_sample_count(int(spp))
+    finally:
+        logger.set_log_level(level)
     return int(sampler.sample_count())
 
 

@@ -28,6 +28,11 @@ def _generator(pattern):
                          f"name or a .wif path, got {type(pattern).__name__}")
 
 
+def generator_parameters(pattern) -> set[str]:
+    """The parameters (besides pattern and resolution) that ``pattern``'s map generator takes."""
+    return set(inspect.signature(_generator(pattern)).parameters) - {"pattern", "resolution"}
+
+
 def generate_maps(pattern, resolution=DEFAULT_RESOLUTION, **params) -> ClothMaps:
     """Seamless fibre-level maps of one tile of ``pattern``.
 

@@ -469,6 +469,12 @@ def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
         "warp_colors": np.asarray(warp_rgb).tolist(),
         "weft_colors": np.asarray(weft_rgb).tolist(),
     }
+    # What the draft's reader had to guess or found odd (a WIF file's warnings), so that
+    # maps.json keeps it: "<file>: <message>", as the reader warned.
+    draft_warnings = draft.meta.get("warnings") if isinstance(draft.meta, dict) else None
+    if draft_warnings:
+        source = draft.meta.get("file")
+        meta["warnings"] = [f"{source}: {w}" if source else str(w) for w in draft_warnings]
     return ClothMaps(tangent=tangent, normal=height_normal(height, 1.0 / W, (height_mm / width_mm) / H), height=height,
                      gap=yarn.astype(np.float32), yarn_id=yarn_id.astype(np.int32),
                      albedo=albedo, meta=meta)

@@ -18,8 +18,13 @@ about anything that would change the cloth: every malformed value raises
 :class:`~mscloth.errors.PatternError` naming the file, the section, the 1-based line and
 what was expected, e.g. ``2229.wif: [THREADING] line 57: shaft 9 does not exist (Shafts=8)``.
 
-Conventions chosen where the spec is silent (also recorded in ``Draft.meta["warnings"]``
-when they were needed):
+Conventions chosen where the spec is silent. When one was needed, or the draft weaves oddly
+(warp ends without a shaft, picks without an entry, no thread interlacing), a
+:class:`WifWarning` (a UserWarning) says so, once per read, as one line naming the file and,
+where known, the section and line, e.g. ``nounits.wif: [WARP] has no Units= for Spacing=0.0185
+(line 32); assuming decipoints (tile 0.0157 mm wide): give Units= ...``. The messages are
+also kept in ``Draft.meta["warnings"]`` (without the file name) and in the maps'
+``meta["warnings"]`` (with it), so ``maps.json`` records them.
 
 * Numbering is 1-based as the spec says. A thread section (THREADING, WARP COLORS, ...)
   containing key 0 is read as 0-based. Shaft numbers are read as 0-based only if shaft 0
@@ -35,12 +40,16 @@ when they were needed):
 * An empty value is tolerated (means "nothing"), except on the last line of the file, where
   it is taken as a number cut off by truncation.
 * ``Units`` missing while a spacing/thickness is given: decipoints are assumed.
-  ``Range`` missing from COLOR PALETTE: ``0,255`` is assumed.
+  ``Spacing`` missing: 0.5 mm (``DEFAULT_SPACING_MM``). ``Shafts``/``Treadles`` missing:
+  the highest one used. ``Range`` missing from COLOR PALETTE: ``0,255`` is assumed.
 """
 from __future__ import annotations
 
+import functools
 import math
+import os
 import re
+import sys
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,7 +58,7 @@ import numpy as np
 from ..errors import PatternError
 from .draft import DEFAULT_SPACING_MM, DEFAULT_THICKNESS_MM, Draft
 
-__all__ = ["read_wif", "parse_wif", "UNIT_MM", "MAX_THREADS", "MAX_SHAFTS"]
+__all__ = ["read_wif", "parse_wif", "WifWarning", "UNIT_MM", "MAX_THREADS", "MAX_SHAFTS"]
 
 #: Millimetres per WIF length unit. A decipoint is a tenth of a printer's point (1/72 in).
 UNIT_MM = {
@@ -139,6 +148,7 @@ class _Wif:
         # Split on CRLF / CR / LF only: str.splitlines() also splits on form feeds, vertical
         # tabs and U+2028, which would make line numbers disagree with a text editor's.
         current: _Section | None = None
+        preamble: list[tuple[int, str]] = []      # (line, text) before the first header
         for lineno, raw in enumerate(re.split(r"\r\n|\r|\n", text), start=1):
             line = raw.split(";", 1)[0].strip()      # ';' starts a comment, whole-line or inline
             if not line:
@@ -159,7 +169,7 @@ class _Wif:
                 continue
             if current is None:
                 # Text before the first header: harmless if the file turns out to be a WIF.
-                self.warnings.append(f"line {lineno}: text before the first section ignored")
+                preamble.append((lineno, line))
                 continue
             key, eq, value = line.partition("=")
             key, value = key.strip(), value.strip()
@@ -173,6 +183,12 @@ class _Wif:
             elif "".join(old.value.split()).upper() != "".join(value.split()).upper():
                 current.problems.append(
                     (lineno, f"duplicate key {key!r}: {value!r} here but {old.value!r} on line {old.line}"))
+        if preamble:
+            (first, snippet), more = preamble[0], len(preamble) - 1
+            snippet = snippet if len(snippet) <= 40 else snippet[:37] + "..."
+            self.warnings.append(
+                f"line {first}: text before the first section ignored ({snippet!r}"
+                + (f" and {more} more line{'s' if more > 1 else ''})" if more else ")"))
 
     def check_syntax(self) -> None:
         """Raise for the first malformed line of any section the draft is built from."""
@@ -288,7 +304,9 @@ def _numbering(wif, uses, count, kind: str, key: str, default_section: str) -> t
         count = top - base + 1
         if e is not None:
             _capped(wif, sec, e, count, MAX_SHAFTS, f"{kind}s")
-        wif.warnings.append(f"no [WEAVING] {key}: {count} inferred from the {kind}s used")
+        where = f" ([{sec}] line {e.line})" if e is not None else ""
+        wif.warnings.append(f"[WEAVING] has no {key}=; {key}={count} inferred from the highest "
+                            f"{kind} used{where}: give {key}=")
     for sec, e, n in uses:
         if n - base >= count:
             raise wif.error(sec, e.line, f"{kind} {n} does not exist ({key}={count}{note})")
@@ -302,7 +320,41 @@ def parse_wif(text: str | bytes, name: str = "<string>") -> Draft:
     """
     fname = Path(name).name or name
     wif = _Wif(_decode(text), fname)
-    return _build(wif, name)
+    draft = _build(wif, name)
+    _emit_warnings(fname, draft.meta["warnings"])
+    return draft
+
+
+class WifWarning(UserWarning):
+    """A WIF file was read, but by a guess (a unit, a spacing, a count it does not give) or
+    into a draft that weaves oddly (unthreaded ends, no interlacing): the message names the
+    file and, where known, the section and line. Filter it with
+    ``warnings.simplefilter("ignore", WifWarning)``."""
+
+
+_PACKAGE_DIR = str(Path(__file__).resolve().parents[1])     # .../mscloth
+
+
+def _emit_warnings(fname: str, messages: list[str]) -> None:
+    """Show each of ``messages`` once, as a WifWarning ``"<file>: <message>"`` attributed to
+    the first caller outside mscloth (the user's ``read_wif``, ``generate_maps`` or
+    ``mi.load_dict`` call), whichever mscloth function read the file."""
+    if not messages:
+        return
+    level, frame = 1, sys._getframe(0)
+    while frame.f_back is not None and _in_package(frame.f_code.co_filename):
+        frame, level = frame.f_back, level + 1
+    for message in dict.fromkeys(messages):          # unique, in order
+        warnings.warn(f"{fname}: {message}", WifWarning, stacklevel=level)
+
+
+@functools.lru_cache(maxsize=256)
+def _in_package(filename: str) -> bool:
+    try:
+        path = str(Path(filename).resolve())
+    except (OSError, RuntimeError, ValueError):
+        return False
+    return path.startswith(_PACKAGE_DIR + os.sep)
 
 
 def _decode(data: str | bytes) -> str:
@@ -437,6 +489,13 @@ def _build(wif: _Wif, name: str) -> Draft:
         _capped(wif, "THREADING", threading.items[n_warp - 1], n_warp, MAX_THREADS, "warp ends")
     _limit_threads(wif, threading, n_warp, warp_explicit, "WARP")
     thr_shafts = {i: s for i, s in thr_shafts.items() if i in threading.items}
+    unthreaded = [i for i in range(n_warp) if not thr_shafts.get(i)]     # missing or empty
+    if unthreaded:
+        they = "it floats" if len(unthreaded) == 1 else "they float"
+        wif.warnings.append(
+            f"[THREADING] gives no shaft for "
+            f"{_thread_list(unthreaded, threading.base, 'warp end')} (of {n_warp}): never lifted, "
+            f"{they} under every pick across the whole tile; thread {'it' if len(unthreaded) == 1 else 'them'}")
 
     # --- lift sequence -------------------------------------------------------------------------
     has_lift = wif.section("LIFTPLAN") is not None
@@ -488,6 +547,13 @@ def _build(wif: _Wif, name: str) -> Draft:
         _capped(wif, lift_name, picks.items[n_weft - 1], n_weft, MAX_THREADS, "weft picks")
     _limit_threads(wif, picks, n_weft, weft_explicit, "WEFT")
     pick_values = {i: v for i, v in pick_values.items() if i in picks.items}
+    unlisted = [i for i in range(n_weft) if i not in picks.items]
+    if unlisted:
+        it = "it floats" if len(unlisted) == 1 else "they float"
+        wif.warnings.append(
+            f"[{lift_name}] has no entry for "
+            f"{_thread_list(unlisted, picks.base, 'weft pick')} (of {n_weft}): nothing is lifted, "
+            f"so {it} over every warp end across the whole tile")
 
     # --- shaft numbering: one namespace across threading, tieup and liftplan ----------------
     shaft_uses: list[tuple[str, _Entry, int]] = []
@@ -523,6 +589,9 @@ def _build(wif: _Wif, name: str) -> Draft:
     listed[list(picks.items)] = True
     raised &= listed[:, None]                                     # absent picks lift nothing
     drawdown = (raised.astype(np.int64) @ thread_m.T.astype(np.int64)) > 0
+    interlacing = _interlacing_warning(drawdown, thread_m.any(axis=1), lift_source)
+    if interlacing is not None:
+        wif.warnings.append(interlacing)
 
     # --- colours ------------------------------------------------------------------------------
     table, rng = _color_table(wif)
@@ -533,15 +602,22 @@ def _build(wif: _Wif, name: str) -> Draft:
         message = (f"{' and '.join(wif.colourless)}: Color= names a palette colour but there is no "
                    f"[COLOR TABLE]; white used")
         wif.warnings.append(message)
-        warnings.warn(f"{fname}: {message}", UserWarning, stacklevel=3)
 
     # --- spacing / thickness ------------------------------------------------------------------
-    warp_units, warp_factor = _units(wif, "WARP")
-    weft_units, weft_factor = _units(wif, "WEFT")
-    warp_spacing = _lengths(wif, "WARP", "SPACING", n_warp, warp_explicit, warp_factor, DEFAULT_SPACING_MM)
-    weft_spacing = _lengths(wif, "WEFT", "SPACING", n_weft, weft_explicit, weft_factor, DEFAULT_SPACING_MM)
-    warp_thick = _lengths(wif, "WARP", "THICKNESS", n_warp, warp_explicit, warp_factor, DEFAULT_THICKNESS_MM)
-    weft_thick = _lengths(wif, "WEFT", "THICKNESS", n_weft, weft_explicit, weft_factor, DEFAULT_THICKNESS_MM)
+    warp_units, warp_factor, warp_assumed = _units(wif, "WARP")
+    weft_units, weft_factor, weft_assumed = _units(wif, "WEFT")
+    warp_spacing, warp_unspaced = _lengths(wif, "WARP", "SPACING", n_warp, warp_explicit, warp_factor,
+                                           DEFAULT_SPACING_MM)
+    weft_spacing, weft_unspaced = _lengths(wif, "WEFT", "SPACING", n_weft, weft_explicit, weft_factor,
+                                           DEFAULT_SPACING_MM)
+    warp_thick, warp_unthick = _lengths(wif, "WARP", "THICKNESS", n_warp, warp_explicit, warp_factor,
+                                        DEFAULT_THICKNESS_MM)
+    weft_thick, weft_unthick = _lengths(wif, "WEFT", "THICKNESS", n_weft, weft_explicit, weft_factor,
+                                        DEFAULT_THICKNESS_MM)
+    for side, assumed, count, spacing, unspaced, unthick in (
+            ("WARP", warp_assumed, n_warp, warp_spacing, warp_unspaced, warp_unthick),
+            ("WEFT", weft_assumed, n_weft, weft_spacing, weft_unspaced, weft_unthick)):
+        _length_warnings(wif, side, assumed, count, spacing, unspaced, unthick)
 
     meta.update({
         "shafts": n_shafts,
@@ -650,35 +726,115 @@ def _thread_colors(wif: _Wif, side: str, count: int, explicit: bool,
     return colors
 
 
-def _units(wif: _Wif, side: str) -> tuple[str | None, float]:
+def _units(wif: _Wif, side: str) -> tuple[str | None, float, bool]:
+    """(unit name, mm per unit, assumed) of one side's lengths: decipoints are assumed (with a
+    warning, see _length_warnings) when lengths are given without Units; the name is None when
+    none are given."""
     e = wif.get(side, "UNITS")
     if e is None or not e.value:
         uses = [wif.get(side, "SPACING"), wif.get(side, "THICKNESS"),
                 wif.section(f"{side} SPACING"), wif.section(f"{side} THICKNESS")]
         if any(u is not None for u in uses):
-            wif.warnings.append(f"[{side}] has no Units: decipoints assumed")
-            return "Decipoints", UNIT_MM["DECIPOINTS"]
-        return None, UNIT_MM["DECIPOINTS"]         # no lengths given: nothing to convert
+            return "Decipoints", UNIT_MM["DECIPOINTS"], True
+        return None, UNIT_MM["DECIPOINTS"], False   # no lengths given: nothing to convert
     unit = _UNIT_ALIASES.get(_norm(e.value))
     if unit is None:
         raise wif.error(side, e.line, f"expected Units=Decipoints, Inches, Centimeters or Millimeters, got {e.value!r}")
-    return unit.title(), UNIT_MM[unit]
+    return unit.title(), UNIT_MM[unit], False
 
 
 def _lengths(wif: _Wif, side: str, what: str, count: int, explicit: bool,
-             factor: float, default_mm: float) -> np.ndarray | None:
-    """Per-thread spacing or thickness in mm: [SIDE WHAT] entry, else [SIDE] What, else default."""
+             factor: float, default_mm: float) -> tuple[np.ndarray | None, int]:
+    """Per-thread spacing or thickness in mm: [SIDE WHAT] entry, else [SIDE] What, else default;
+    and how many threads got the default."""
     e = wif.get(side, what)
     base = None
     if e is not None and e.value:
         base = wif.float_value(side, e, f"a {what.lower()}") * factor
     num = _numbered(wif, f"{side} {what}", f"{side.lower()} thread")
     if num is None:
-        return None if base is None else np.full(count, base)
+        return (None, count) if base is None else (np.full(count, base), 0)
     _limit_threads(wif, num, count, explicit, side)
     out = np.full(count, default_mm if base is None else base)
+    given = np.zeros(count, dtype=bool)
     for i, ent in num.items.items():
         if wif.empty_ok(num.section, ent, f"a {what.lower()}"):
             continue
         out[i] = wif.float_value(num.section, ent, f"a {what.lower()}") * factor
-    return out
+        given[i] = True
+    return out, 0 if base is not None else int(count - given.sum())
+
+
+def _length_warnings(wif: _Wif, side: str, units_assumed: bool, count: int, spacing: np.ndarray | None,
+                     unspaced: int, unthick: int) -> None:
+    """Warn about one side's lengths that are guesses: no Units (decipoints assumed, which makes
+    a file written in centimetres ~280 times too small) and spacings the file does not give."""
+    kind = "warp end" if side == "WARP" else "weft pick"
+    extent = "wide" if side == "WARP" else "tall"
+    tile_mm = (DEFAULT_SPACING_MM * count if spacing is None else float(spacing.sum()))
+    if units_assumed and (unspaced < count or unthick < count):   # a length was given, unitless
+        e = next((e for e in (wif.get(side, "SPACING"), wif.get(side, "THICKNESS"))
+                  if e is not None and e.value), None)
+        if unspaced < count:
+            size = f" (tile {tile_mm:.3g} mm {extent})"
+        elif e is not None:           # only thicknesses were given: [SIDE] Thickness=
+            size = f" (yarns {wif.float_value(side, e, 'a thickness') * UNIT_MM['DECIPOINTS']:.3g} mm thick)"
+        else:                         # only a [SIDE THICKNESS] section
+            size = ""
+        sec = next((n for n in (f"{side} SPACING", f"{side} THICKNESS") if wif.section(n) is not None),
+                   f"{side} SPACING")
+        given = (f" for {e.key.strip()}={e.value} (line {e.line})" if e is not None
+                 else f" for its [{sec}] (line {wif.sections[sec].line})" if sec in wif.sections else "")
+        wif.warnings.append(f"[{side}] has no Units={given}; assuming decipoints{size}: give Units= "
+                            f"(Decipoints, Inches, Centimeters or Millimeters)")
+    if unspaced == count:
+        wif.warnings.append(f"[{side}] has no Spacing=; assuming {DEFAULT_SPACING_MM:g} mm between "
+                            f"{kind}s (tile {tile_mm:.3g} mm {extent}): give Spacing= and Units=")
+    elif unspaced:
+        wif.warnings.append(f"[{side} SPACING] gives no spacing for {unspaced} of {count} {kind}s and "
+                            f"[{side}] has no Spacing=; assuming {DEFAULT_SPACING_MM:g} mm for them "
+                            f"(tile {tile_mm:.3g} mm {extent})")
+
+
+def _thread_list(indices: list[int], base: int, kind: str, most: int = 12) -> str:
+    """``"warp ends 3, 5-7 and 9"`` (numbered as the file numbers them), the first ``most`` runs."""
+    runs: list[list[int]] = []
+    for i in indices:
+        if runs and i == runs[-1][1] + 1:
+            runs[-1][1] = i
+        else:
+            runs.append([i, i])
+    text = [f"{a + base}" if a == b else f"{a + base}-{b + base}" for a, b in runs[:most]]
+    if len(runs) > most:
+        listed = ", ".join(text) + f", ... ({len(indices)} in all)"
+    else:
+        listed = text[0] if len(text) == 1 else ", ".join(text[:-1]) + " and " + text[-1]
+    return f"{kind}{'s' if len(indices) > 1 else ''} {listed}"
+
+
+def _interlacing_warning(drawdown: np.ndarray, threaded: np.ndarray, lift_source: str) -> str | None:
+    """A warning if no thread of the draft interlaces: among the threaded warp ends, every pick
+    is over all or under all of them (the picks lift none or all of the warp's shafts), or
+    every end is over all picks or under all of them (every pick lifts the same shafts).
+    Unthreaded ends have their own warning."""
+    sub = drawdown[:, threaded]
+    if sub.size == 0:
+        return None
+    rows_flat = bool(np.all(sub.all(axis=1) | ~sub.any(axis=1)))
+    cols_flat = bool(np.all(sub.all(axis=0) | ~sub.any(axis=0)))
+    if lift_source == "liftplan":
+        where, lift = "[LIFTPLAN]", "every pick lifts"
+    else:
+        where, lift = "[TIEUP]", "the treadles of every pick lift"
+    if rows_flat and cols_flat:
+        state = "the warp over every pick" if sub.flat[0] else "every pick over the warp"
+        return (f"{where}: no thread interlaces: {lift} {'all' if sub.flat[0] else 'none'} of the "
+                f"shafts the warp is threaded on, so the tile is {state}, with no weave")
+    if rows_flat:
+        return (f"{where}: no weft pick interlaces with the warp: {lift} none or all of the shafts "
+                f"the warp is threaded on, so each pick lies over or under every warp end across "
+                f"the whole tile")
+    if cols_flat:
+        return (f"{where}: no warp end interlaces with the weft: {lift} the same shafts, so each "
+                f"warp end lies over or under every pick across the whole tile")
+    return None

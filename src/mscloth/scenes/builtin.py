@@ -14,6 +14,7 @@ from pathlib import Path
 import mitsuba as mi
 
 from ..errors import ClothError
+from .names import SCENE_NAMES
 from .pixel_sampler import sampler_dict
 from .drape import drape_ply
 from .swatch import swatch_scene
@@ -252,6 +253,8 @@ def denim_scene(width: int = 512, height: int = 288, maps_dir: str | os.PathLike
 
 SCENES = {"swatch": swatch_scene, "plane": plane_scene, "sphere": sphere_scene, "drape": drape_scene,
           "satin": satin_scene, "satin-plane": satin_plane_scene, "denim": denim_scene}
+if tuple(SCENES) != SCENE_NAMES:  # (the command line lists SCENE_NAMES without importing this module)
+    raise ImportError(f"scenes.names.SCENE_NAMES {SCENE_NAMES} differs from the builders {tuple(SCENES)}")
 
 
 def set_cloth_parameters(node, **params) -> int:
