@@ -490,12 +490,8 @@ def _build(wif: _Wif, name: str) -> Draft:
     _limit_threads(wif, threading, n_warp, warp_explicit, "WARP")
     thr_shafts = {i: s for i, s in thr_shafts.items() if i in threading.items}
     unthreaded = [i for i in range(n_warp) if not thr_shafts.get(i)]     # missing or empty
-    if unthreaded:
-        they = "it floats" if len(unthreaded) == 1 else "they float"
-        wif.warnings.append(
-            f"[THREADING] gives no shaft for "
-            f"{_thread_list(unthreaded, threading.base, 'warp end')} (of {n_warp}): never lifted, "
-            f"{they} under every pick across the whole tile; thread {'it' if len(unthreaded) == 1 else 'them'}")
+    _floating_warning(wif, unthreaded, threading.base, n_warp, "[THREADING] gives no shaft for", "warp end",
+                      "never lifted, {they} under every pick across the whole tile; thread {them}")
 
     # --- lift sequence -------------------------------------------------------------------------
     has_lift = wif.section("LIFTPLAN") is not None
@@ -548,12 +544,8 @@ def _build(wif: _Wif, name: str) -> Draft:
     _limit_threads(wif, picks, n_weft, weft_explicit, "WEFT")
     pick_values = {i: v for i, v in pick_values.items() if i in picks.items}
     unlisted = [i for i in range(n_weft) if i not in picks.items]
-    if unlisted:
-        it = "it floats" if len(unlisted) == 1 else "they float"
-        wif.warnings.append(
-            f"[{lift_name}] has no entry for "
-            f"{_thread_list(unlisted, picks.base, 'weft pick')} (of {n_weft}): nothing is lifted, "
-            f"so {it} over every warp end across the whole tile")
+    _floating_warning(wif, unlisted, picks.base, n_weft, f"[{lift_name}] has no entry for", "weft pick",
+                      "nothing is lifted, so {they} over every warp end across the whole tile")
 
     # --- shaft numbering: one namespace across threading, tieup and liftplan ----------------
     shaft_uses: list[tuple[str, _Entry, int]] = []
@@ -794,6 +786,16 @@ def _length_warnings(wif: _Wif, side: str, units_assumed: bool, count: int, spac
         wif.warnings.append(f"[{side} SPACING] gives no spacing for {unspaced} of {count} {kind}s and "
                             f"[{side}] has no Spacing=; assuming {DEFAULT_SPACING_MM:g} mm for them "
                             f"(tile {tile_mm:.3g} mm {extent})")
+
+
+def _floating_warning(wif, missing: list[int], base: int, count: int, head: str, kind: str, tail: str) -> None:
+    """Warn of threads the draft leaves out (``missing``, of ``count``), which float across
+    the whole tile: ``head`` the threads (of ``kind``) ``(of count)``: ``tail``, whose
+    ``{they}`` / ``{them}`` agree with their number."""
+    if missing:
+        one = len(missing) == 1
+        tail = tail.format(they="it floats" if one else "they float", them="it" if one else "them")
+        wif.warnings.append(f"{head} {_thread_list(missing, base, kind)} (of {count}): {tail}")
 
 
 def _thread_list(indices: list[int], base: int, kind: str, most: int = 12) -> str:
