@@ -66,7 +66,12 @@ def install() -> None:
             return out
         if hashed is None:  # (brute force's shading reads no table)
             return out + ((mi.Color3f(0.0), mi.Float(0.0)),)
-        return out + (self.probe_albedo(fr, fp, hashed, mi.Bool(active) & sky_albedo_wanted),)
+        # As the shading reads it: in a branch that packets of later vertices skip.
+        want = mi.Bool(active) & sky_albedo_wanted
+        albedo = cloth_shading.branch(want, (si, wos, samples),
+                                      true_fn=lambda: self.probe_albedo(fr, fp, hashed, want),
+                                      false_fn=lambda: (mi.Color3f(0.0), mi.Float(0.0)), label="cost_parts_sky")
+        return out + (albedo,)
 
     def switched_shade(self, enabled, si, wos, samples, active, pixel_offset=None, pixel_filter="box", mis=True,
                        exact_wos=None, sky_albedo=False):
