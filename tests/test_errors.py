@@ -105,26 +105,31 @@ def test_suggestions_come_from_the_documented_parameters():
     load_dict({"type": "cloth", "pattern": "plain", "resolution": 16, "multiscale": False, "visibility": False})
 
 
-def test_cli_names_a_misspelled_parameter_in_a_scene_file(tmp_path, capsys):
+def _cloth_scene_file(path, *bsdf_lines: str):
+    """A scene file of one rectangle whose cloth ``<bsdf>`` (line 3) holds ``bsdf_lines``."""
+    body = "".join(f"            {line}\n" for line in bsdf_lines)
+    path.write_text('<scene version="3.0.0">\n    <shape type="rectangle">\n        <bsdf type="cloth">\n'
+                    f'{body}        </bsdf>\n    </shape>\n</scene>\n')
+    return path
+
+
+def _cli_render_error_lines(scene, tmp_path, capsys) -> list[str]:
+    """The non-blank lines ``mscloth render SCENE`` prints on stderr, where it fails (exit 2)."""
     from mscloth.cli import main
 
-    scene = tmp_path / "typo.xml"
-    scene.write_text('<scene version="3.0.0">\n'
-                     '    <shape type="rectangle">\n'
-                     '        <bsdf type="cloth">\n'
-                     '            <float name="sheen_thicknes" value="0.3"/>\n'
-                     '        </bsdf>\n'
-                     '    </shape>\n'
-                     '</scene>\n')
     assert main(["render", str(scene), "--out", str(tmp_path / "x.exr")]) == 2
-    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    return [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+
+
+def test_cli_names_a_misspelled_parameter_in_a_scene_file(tmp_path, capsys):
+    scene = _cloth_scene_file(tmp_path / "typo.xml", '<float name="sheen_thicknes" value="0.3"/>')
+    lines = _cli_render_error_lines(scene, tmp_path, capsys)
     assert len(lines) == 1, lines
     assert f"{scene} line 3: " in lines[0] and "'sheen_thicknes'" in lines[0] and "'sheen_thickness'" in lines[0]
     # Another plugin's misspelling: Mitsuba's message, with the name it lists on its next line.
     scene.write_text(scene.read_text().replace('type="cloth"', 'type="diffuse"').replace(
         'float name="sheen_thicknes" value="0.3"', 'rgb name="reflectanc" value="0.3"'))
-    assert main(["render", str(scene), "--out", str(tmp_path / "x.exr")]) == 2
-    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    lines = _cli_render_error_lines(scene, tmp_path, capsys)
     assert len(lines) == 1 and lines[0].endswith('of type "diffuse": reflectanc'), lines
     assert not (tmp_path / "x.exr").exists()
 
@@ -254,23 +259,14 @@ def test_an_albedo_texture_that_cannot_be_bounded_is_a_one_line_error(texture, n
 
 
 def test_cli_shows_a_procedural_albedo_error_in_one_line(tmp_path, capsys):
-    from mscloth.cli import main
-
-    scene = tmp_path / "chk.xml"
-    scene.write_text('<scene version="3.0.0">\n'
-                     '    <shape type="rectangle">\n'
-                     '        <bsdf type="cloth">\n'
-                     '            <texture type="checkerboard" name="diffuse_albedo">\n'
-                     '                <rgb name="color0" value="0.2"/>\n'
-                     '                <texture type="mesh_attribute" name="color1">\n'
-                     '                    <string name="name" value="vertex_color"/>\n'
-                     '                </texture>\n'
-                     '            </texture>\n'
-                     '        </bsdf>\n'
-                     '    </shape>\n'
-                     '</scene>\n')
-    assert main(["render", str(scene), "--out", str(tmp_path / "x.exr")]) == 2
-    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    scene = _cloth_scene_file(tmp_path / "chk.xml",
+                              '<texture type="checkerboard" name="diffuse_albedo">',
+                              '    <rgb name="color0" value="0.2"/>',
+                              '    <texture type="mesh_attribute" name="color1">',
+                              '        <string name="name" value="vertex_color"/>',
+                              '    </texture>',
+                              '</texture>')
+    lines = _cli_render_error_lines(scene, tmp_path, capsys)
     assert len(lines) == 1, lines
     assert f"{scene} line 3: " in lines[0] and lines[0].endswith(
         "cannot bound the values of texture Checkerboard > MeshAttribute; use a float, RGB, bitmap or checkerboard")

@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .cloth_limits import ENERGY_PARAMETERS, FLOAT_PARAMETERS, reflected_bound
 from .errors import ClothError, ParameterError, ResolutionError
 from .maps.generator_support import srgb_to_linear, tile_resolution
 
@@ -256,8 +257,14 @@ def _fabric_maps(fabric: Fabric, resolution: int):
 
 
 # ---------------------------------------------------------------------------- validation
+def _plugin_range(name: str) -> tuple[float, float, bool, bool]:
+    """The ``cloth`` plugin's range of its float parameter ``name``, as FIELD_RANGES holds one."""
+    _, low, high, low_inclusive, _ = FLOAT_PARAMETERS[name]
+    return low, high, not low_inclusive, False
+
+
 #: Ranges of the number fields: (lowest, highest, lowest excluded, highest excluded). The
-#: BSDF's mirror the ``cloth`` plugin's own (bsdf/parameters.py), which takes a preset's
+#: BSDF's are the ``cloth`` plugin's own (:mod:`.cloth_limits`), which takes a preset's
 #: values unchecked; the maps' are what woven_maps / knit_maps accept.
 FIELD_RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "ends_per_cm": (0.0, math.inf, True, True),
@@ -268,14 +275,14 @@ FIELD_RANGES: dict[str, tuple[float, float, bool, bool]] = {
     "slub_tone": (0.5, 2.0, False, False),
     "profile_exponent": (1.0, 16.0, False, False),
     "float_arch": (0.0, 1.0, False, False),
-    "roughness": (0.0, 1.0, True, False),
-    "thickness": (0.0, 1e3, True, False),
-    "specular_albedo": (0.0, 1.0, False, False),
+    "roughness": _plugin_range("roughness"),
+    "thickness": _plugin_range("thickness"),
+    "specular_albedo": (0.0, 1.0, False, False),  # (every spectrum parameter's range)
     "specular_transmittance": (0.0, 1.0, False, False),
     "diffuse_albedo": (0.0, 1.0, False, False),
     "diffuse_transmittance": (0.0, 1.0, False, False),
-    "sheen_roughness": (0.0, 1.0, True, False),
-    "sheen_thickness": (0.0, 1e3, False, False),
+    "sheen_roughness": _plugin_range("sheen_roughness"),
+    "sheen_thickness": _plugin_range("sheen_thickness"),
 }
 #: A knit's course / wale spacing (ends_per_cm / picks_per_cm): knit_maps' loop_aspect.
 _KNIT_LOOP_ASPECT = (0.3, 3.0)
@@ -455,8 +462,7 @@ def _check_fields(fabric: Fabric, where: str, base: str | None) -> None:
 
     for key in ("warp_color", "weft_color", "sheen_color"):
         keep(key, _colour(where, key, getattr(fabric, key)))
-    total = fabric.diffuse_albedo + fabric.diffuse_transmittance + max(
-        fabric.specular_albedo, fabric.specular_transmittance)
+    total = float(reflected_bound(*(getattr(fabric, name) for name in ENERGY_PARAMETERS)))
     if total > 1.0 + 1e-6:
         raise ParameterError(
             f"{where}: fields 'diffuse_albedo' + 'diffuse_transmittance' + max('specular_albedo', "

@@ -13,30 +13,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..cloth_limits import ENERGY_PARAMETERS, FLOAT_PARAMETERS, SPECTRUM_PARAMETERS, reflected_bound
 from ..errors import ParameterError
-
-#: (name, default, lowest, highest, lowest allowed itself?) of the scalar parameters.
-FLOAT_PARAMETERS = {
-    # name: (default, low, high, low_inclusive, meaning)
-    "uv_scale": (1.0, 0.0, math.inf, False, "pattern tiles per UV unit"),
-    "uv_scale_v": (0.0, 0.0, math.inf, True, "pattern tiles per UV unit along v (0: from uv_scale and the tile's aspect)"),
-    "uv_unit": (0.0, 0.0, 1e6, True, "length of one UV unit in metres, for UVs in physical units (0: uv_scale "
-                                     "counts tiles per UV unit; 1 with a fabric)"),
-    "roughness": (0.3, 0.0, 1.0, False, "fibre SGGX roughness alpha (alpha^2 along the fibre)"),
-    "thickness": (2.0, 0.0, 1e3, False, "optical thickness T of the yarn layer"),
-    "sheen_roughness": (0.5, 0.0, 1.0, False, "roughness of the fuzz fibres"),
-    "sheen_thickness": (0.2, 0.0, 1e3, True, "optical thickness of the fuzz layer (0: no sheen)"),
-}
-
-#: Spectrum parameters (float, RGB or texture), all within [0, 1].
-SPECTRUM_PARAMETERS = {
-    "specular_albedo": (0.4, "albedo k_rs of specular fibre reflection"),
-    "specular_transmittance": (0.2, "albedo k_ts of specular fibre transmission"),
-    "diffuse_albedo": (0.4, "albedo k_rd of diffuse (multiply scattered) reflection"),
-    "diffuse_transmittance": (0.1, "albedo k_td of diffuse transmission"),
-    "sheen_color": (0.5, "albedo of the fuzz fibres"),
-}
-
 
 #: Switches and table sizes of multi-scale shading: name -> (default, low, high, meaning).
 INT_PARAMETERS = {
@@ -264,10 +242,6 @@ SHAPE_TEXTURES = {"MeshAttribute"}
 #: What a texture must be for its range to be known (the end of an error's hint).
 BOUNDED_TEXTURES = "a float, RGB, bitmap or checkerboard"
 
-#: The spectrum parameters in the energy bound (see :func:`check_energy`).
-ENERGY_PARAMETERS = ("diffuse_albedo", "diffuse_transmittance", "specular_albedo", "specular_transmittance")
-
-
 def texture_name(texture) -> str:
     """A texture's class name (``Checkerboard``, ``BitmapTexture``), for one-line messages:
     its ``str()`` spans several lines."""
@@ -354,11 +328,9 @@ def check_spectrum(name, texture, where="cloth") -> np.ndarray:
 
 def check_energy(bounds, where="cloth") -> None:
     """Raise ParameterError if the upper ``bounds`` (name -> per-channel bound) of the
-    :data:`ENERGY_PARAMETERS` let the cloth reflect more light than it receives. Single
-    scattering returns at most max(k_rs, k_ts) (its R + T < 1), the diffuse lobes
-    k_rd + k_td; their sum must not exceed 1."""
-    total = bounds["diffuse_albedo"] + bounds["diffuse_transmittance"] + np.maximum(
-        bounds["specular_albedo"], bounds["specular_transmittance"])
+    :data:`ENERGY_PARAMETERS` let the cloth reflect more light than it receives
+    (:func:`.cloth_limits.reflected_bound` over 1)."""
+    total = reflected_bound(*(bounds[name] for name in ENERGY_PARAMETERS))
     if np.any(total > 1.0 + 1e-6):
         ch = int(np.argmax(total))
         raise ParameterError(

@@ -2,7 +2,6 @@
 timed ``mi.render`` of it (see :mod:`.compare` for what the time leaves out)."""
 from __future__ import annotations
 
-import contextlib
 import gc
 import time
 from dataclasses import dataclass, field
@@ -10,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ClothError
+from ..mitsuba_log import errors_only
 
 #: Seeds: reference halves, multi-scale and brute-force curve points never share one.
 REFERENCE_SEEDS = (1_000_000, 2_000_000)
@@ -62,7 +62,7 @@ def timed_render(scene, spp: int, seed: int) -> Render:
     from ..render import KernelCompilation
 
     gc.collect()  # see render.render_progressive: no plugin freed mid-trace
-    with KernelCompilation() as compiling, _mitsuba_errors_only():
+    with KernelCompilation() as compiling, errors_only():
         start = time.perf_counter()
         image = np.array(mi.render(scene, spp=spp, seed=seed))[..., :3]
         wall = time.perf_counter() - start
@@ -70,16 +70,3 @@ def timed_render(scene, spp: int, seed: int) -> Render:
     taken = int(scene.sensors()[0].sampler().sample_count()) if scene.sensors() else spp
     return Render(taken, seed, max(wall - compile_s, 1e-6), compile_s, image.astype(np.float32))
 
-
-@contextlib.contextmanager
-def _mitsuba_errors_only():
-    """Mitsuba's log at errors only within the block."""
-    import mitsuba as mi
-
-    logger = mi.logger()
-    level = logger.log_level()
-    logger.set_log_level(mi.LogLevel.Error)
-    try:
-        yield
-    finally:
-        logger.set_log_level(level)

@@ -41,6 +41,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..mitsuba_log import errors_only
+
 #: Pixels of the pilot, each rendered three times at the render's sample count: its cuts vary
 #: by +-0.01-0.015 between seeds on the built-in scenes (+-0.02-0.03 with 4096; L61).
 PILOT_PIXELS = 8192
@@ -173,13 +175,8 @@ def render_sample_count(sensor, spp: int) -> int:
     and keeps its share by. Asked quietly: Mitsuba warns of each rounded count, and the
     render that asked warns once itself."""
     sampler = sensor.sampler().clone()
-    logger = mi.logger()
-    level = logger.log_level()
-    logger.set_log_level(mi.LogLevel.Error)
-    try:
+    with errors_only():
         sampler.set_sample_count(int(spp))
-    finally:
-        logger.set_log_level(level)
     return int(sampler.sample_count())
 
 
