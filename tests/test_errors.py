@@ -224,6 +224,67 @@ def test_texture_albedos_through_traverse_are_checked():
         params.update()
 
 
+def _small_cloth_scene(bsdf: dict):
+    return mi.load_dict({
+        "type": "scene", "integrator": {"type": "clothpath", "max_depth": 4},
+        "sensor": {"type": "perspective", "fov": 35,
+                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 3], target=[0, 0, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 8, "height": 8}},
+        "sky": {"type": "constant", "radiance": 0.8},
+        "cloth": {"type": "rectangle", "bsdf": bsdf}})
+
+
+@pytest.mark.parametrize("updates", [
+    {"thickness": -3.0}, {"sheen_thickness": -1.0}, {"roughness": -1.0}, {"diffuse_albedo.value": 5.0},
+    {"diffuse_transmittance.value": 0.9},
+    {"thickness": 0.5, "specular_albedo.value": 1.5, "sheen_color.value": 0.4},  # all or nothing
+], ids=lambda updates: ",".join(updates))
+def test_a_refused_update_keeps_the_previous_values(updates):
+    """Mitsuba writes the new values before the BSDF checks them: before the fix a refused
+    update left them in place, and the next render shaded with a thickness of -3 (values
+    down to -4e11). Now every parameter of the update is back at its last accepted value,
+    and the cloth renders as before."""
+    scene = _small_cloth_scene(dict(LIGHT_CLOTH, uv_scale=12.0))
+    params = mi.traverse(scene)
+    keys = {name: f"cloth.bsdf.{name}" for name in updates}
+    before = {key: np.array(params[key]) for key in keys.values()}
+    image = np.array(mi.render(scene, spp=4, seed=1))
+    for name, value in updates.items():
+        params[keys[name]] = mi.Float(value)
+    with pytest.raises(ParameterError) as info:
+        params.update()
+    names = ", ".join(name.removesuffix(".value") for name in updates)
+    assert str(info.value).endswith(f"; kept the previous value{'s' if len(updates) > 1 else ''} of {names}")
+    for key, value in before.items():
+        np.testing.assert_array_equal(np.array(mi.traverse(scene)[key]), value, err_msg=key)
+    np.testing.assert_allclose(np.array(mi.render(scene, spp=4, seed=1)), image, rtol=1e-6, atol=1e-7)
+
+
+def test_a_refused_texture_update_keeps_the_previous_texture():
+    """A bitmap's data and a checkerboard's colour, refused, are put back: the textures
+    evaluate as before (the bitmap's lookup data rebuilt from them too)."""
+    data = mi.TensorXf(np.full((2, 2, 3), 0.2, dtype=np.float32))
+    bsdf = mi.load_dict(dict(LIGHT_CLOTH, diffuse_albedo={"type": "bitmap", "data": data, "raw": True},
+                             sheen_color={"type": "checkerboard", "color0": 0.1, "color1": 0.3}))
+    params = mi.traverse(bsdf)
+    params["diffuse_albedo.data"] = mi.TensorXf(np.full((2, 2, 3), 1.5, dtype=np.float32))
+    with pytest.raises(ParameterError, match="kept the previous value of diffuse_albedo$"):
+        params.update()
+    np.testing.assert_array_equal(np.array(mi.traverse(bsdf)["diffuse_albedo.data"]), np.float32(0.2))
+    si = dr.zeros(mi.SurfaceInteraction3f, 1)
+    si.uv = mi.Point2f(0.3, 0.3)
+    np.testing.assert_allclose(np.array(bsdf.params.textures["diffuse_albedo"].eval(si)), 0.2, rtol=1e-6)
+    params["sheen_color.color1.value"] = mi.Float(-1.0)
+    # (Mitsuba keeps the keys of a refused update marked as changed: diffuse_albedo again.)
+    with pytest.raises(ParameterError, match="kept the previous values of diffuse_albedo, sheen_color$"):
+        params.update()
+    assert float(mi.traverse(bsdf)["sheen_color.color1.value"][0]) == pytest.approx(0.3)
+    # A good update after a refused one is taken.
+    params["sheen_color.color1.value"] = mi.Float(0.6)
+    params.update()
+    assert float(mi.traverse(bsdf)["sheen_color.color1.value"][0]) == pytest.approx(0.6)
+
+
 # ----------------------------------------------------------------------------------------
 # Procedural textures as albedos
 # ----------------------------------------------------------------------------------------

@@ -336,3 +336,40 @@ def test_gradients_flow_through_a_shiny_footprint_sample(monkeypatch):
     unrolled = gradients()
     assert all(g != 0.0 for g in as_built), as_built
     np.testing.assert_allclose(as_built, unrolled, rtol=1e-5)
+
+
+# ----------------------------------------------------------------------------------------
+# clothpath renders
+# ----------------------------------------------------------------------------------------
+def test_clothpath_refuses_gradients_in_one_line():
+    """A clothpath render with a gradient on a cloth parameter: one ParameterError, whether
+    the gradient comes through mi.render's params (its backward pass) or the integrator's
+    render would record it; the primal renders (mi.render without params, or under
+    dr.suspend_grad). Before, the sheen parameters'
+    gradient kernel failed LLVM's verifier and Dr.Jit aborted the process."""
+    from mscloth.integrators.clothpath import NOT_DIFFERENTIABLE
+
+    scene = mi.load_dict({
+        "type": "scene", "integrator": {"type": "clothpath", "max_depth": 3},
+        "sensor": {"type": "perspective", "fov": 35,
+                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 3], target=[0, 0, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 8, "height": 8}},
+        "sky": {"type": "constant", "radiance": 0.8},
+        "cloth": {"type": "rectangle", "bsdf": {"type": "cloth", "pattern": "plain", "uv_scale": 12}}})
+    params = mi.traverse(scene)
+    key = "cloth.bsdf.sheen_roughness"
+    dr.enable_grad(params[key])
+    params.update()
+    message = NOT_DIFFERENTIABLE.split(":")[1].strip()
+    try:
+        with pytest.raises(Exception, match=message) as caught:
+            dr.backward(dr.mean(mi.render(scene, params, spp=1), axis=None))
+        assert "clothpath: renders are not differentiable" in str(caught.value)
+        with pytest.raises(ParameterError, match=message):  # the render recorded for AD
+            scene.integrator().render(scene, spp=1)
+        with dr.suspend_grad():
+            assert np.all(np.isfinite(np.array(scene.integrator().render(scene, spp=1))))
+        assert np.all(np.isfinite(np.array(mi.render(scene, spp=1))))  # no params: the primal
+    finally:
+        dr.disable_grad(params[key])
+        params.update()

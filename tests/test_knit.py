@@ -369,7 +369,7 @@ def test_colours_land_in_albedo():
     (dict(fibre_twist_deg="30"), "fibre_twist_deg"),
     (dict(wale_spacing_mm=0.0), "wale_spacing_mm"),
     (dict(rib_depth=-0.5), "rib_depth must be in [0, 4]"),
-    (dict(resolution=3), "resolution (texels along u) must be in [5, 16384]"),
+    (dict(resolution=3), "resolution (texels along u) must be in [5, 8192]"),
     (dict(resolution=(64, 2)), "resolution W must be in [4,"),
     (dict(resolution=(64, 64, 3)), "resolution must be"),
     (dict(resolution=True), "resolution must be"),

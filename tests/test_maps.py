@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import os
 import time
+import warnings
 
 import numpy as np
 import pytest
@@ -289,7 +290,7 @@ def test_albedo_per_yarn(plain_maps):
     (dict(yarn_height=float("nan")), "yarn_height"),
     (dict(fibre_twist_deg=120.0), "fibre_twist_deg must be in [-90, 90]"),
     (dict(fibre_twist_deg="30"), "fibre_twist_deg"),
-    (dict(resolution=3), "resolution (texels along u) must be in [4, 16384]"),
+    (dict(resolution=3), "resolution (texels along u) must be in [4, 8192]"),
     (dict(resolution=(64, 64, 3)), "resolution must be"),
     (dict(warp_colors=[[1, 0, 0]]), "warp_colors"),
     (dict(weft_colors=[2.0, 0, 0]), "weft_colors values must be in [0, 1]"),
@@ -439,3 +440,131 @@ def test_resolve_unknown():
     with pytest.raises(PatternError) as info:
         resolve_pattern("foo")
     assert "unknown pattern 'foo'" in str(info.value) and "plain" in str(info.value)
+
+
+# ------------------------------------------------------------ resolutions that fit the tile
+def _draft(ends: int, picks: int, weft_spacing: float | None = None) -> Draft:
+    """A plain-like draft of ``ends`` x ``picks`` (checkerboard drawdown)."""
+    i, j = np.indices((picks, ends))
+    return Draft((i + j) % 2 == 0, weft_spacing=weft_spacing)
+
+
+def test_default_resolution_fits_wide_and_tall_drafts():
+    """The default was 8 texels per end capped at 1024 and knew nothing of the height: a
+    600-end draft (2 texels per end: 1200 at least) and a 4-end x 1000-pick one (a tile 250
+    times as tall as wide: at most 32 wide for 8192 tall) got widths their tile refused."""
+    from mscloth.maps.builtin import default_resolution
+    from mscloth.maps.generator_support import tile_resolution, width_range
+    from mscloth.maps.woven import tile_shape
+
+    wide, tall = _draft(600, 600), _draft(4, 1000)
+    assert default_resolution(wide) == 1200
+    assert tile_resolution(1200, *tile_shape(wide)) == (1200, 1200)
+    assert width_range(*tile_shape(tall)[:3]) == (8, 32)
+    assert default_resolution(tall) == 32
+    assert woven_maps(tall, default_resolution(tall)).resolution == (8000, 32)
+
+
+def test_default_resolution_of_a_tile_nothing_fits_says_why_without_a_number():
+    """No width holds 2 ends whose picks are spaced 3000 times wider (any width of 4 or more
+    makes the tile over 8192 tall), nor 3000 courses at 4 texels each: the error says so
+    and what to change, and quotes no resolution the caller never gave."""
+    from mscloth.errors import ResolutionError
+    from mscloth.maps.builtin import default_resolution
+    from mscloth.patterns.knit import KnitPattern
+
+    with pytest.raises(ResolutionError) as info:
+        default_resolution(_draft(2, 2, weft_spacing=1500.0))
+    text = str(info.value)
+    assert text.startswith("no resolution (texels along u) fits this tile: at its aspect H/W = 3000, a tile as wide as its 2 warp ends "
+                           "need (4 texels) would be 12000 texels tall")
+    assert "fewer weft picks per repeat, or weft picks spaced more closely, would fit" in text
+    assert "got" not in text and info.value.low > info.value.high
+    with pytest.raises(ResolutionError) as info:
+        default_resolution(KnitPattern(np.ones((3000, 1), dtype=bool)))
+    assert "4 texels for each of the 3000 courses" in str(info.value)
+    assert "a repeat of at most 2048 courses fits" in str(info.value) and "got" not in str(info.value)
+
+
+def test_largest_tile_side_is_the_bsdfs():
+    """The cloth BSDF's resolution takes [8, 8192]; the generators agree."""
+    from mscloth.errors import ResolutionError
+    from mscloth.maps.generator_support import MAX_RESOLUTION
+
+    assert MAX_RESOLUTION == 8192
+    # (Cheap tiles: 4096 ends x 2 picks is 8192 x 4 texels at its least.)
+    with pytest.raises(ResolutionError, match=r"must be in \[8192, 8192\] for this tile, got 8193: a tile side "
+                                              r"has at most 8192 texels"):
+        woven_maps(_draft(4096, 2), 8193)
+    with pytest.raises(ResolutionError, match=r"resolution H must be in \[4, 8192\]"):
+        woven_maps(plain(), (8193, 4))
+
+
+def test_one_thread_or_stitch_is_singular():
+    from mscloth.maps.knit import knit_maps
+    from mscloth.patterns.knit import jersey
+
+    with pytest.raises(ParameterError) as info:
+        knit_maps(jersey(), 3)  # one course, one wale
+    assert "4 texels for its 1 course" in str(info.value) and "each of the 1" not in str(info.value)
+
+
+def test_maps_that_would_not_fit_in_memory_are_refused_before_any_array(monkeypatch):
+    """At ~640 bytes per texel a tile is refused, in one line with the estimate and what is
+    available, when it needs more than the system has (no MemoryError, no OOM killer); the
+    BSDF's path (resolve_pattern) gets the same error."""
+    from mscloth.errors import ResolutionError
+    from mscloth.maps import generator_support
+    from mscloth.maps.knit import knit_maps
+    from mscloth.patterns.knit import jersey
+
+    monkeypatch.setattr(generator_support, "available_memory", lambda: 200 << 20)
+    with pytest.raises(ResolutionError) as info:
+        woven_maps(plain(), 1024)
+    text = str(info.value)
+    assert text.startswith("maps of 1024x1024 texels need about 704 MiB of memory to generate")
+    assert "but 200 MiB is available: resolution 472 (texels along u) or less fits" in text
+    assert "\n" not in text and info.value.largest == 472 and info.value.low is None
+    with pytest.raises(ResolutionError, match="200 MiB is available"):
+        resolve_pattern("twill-2-1", 1000)
+    with pytest.raises(ResolutionError, match="200 MiB is available"):
+        knit_maps(jersey(), 1024)
+    # The suggestion holds, and what fits is made as before.
+    assert woven_maps(plain(), 472).resolution == (472, 472)
+    monkeypatch.setattr(generator_support, "available_memory", lambda: 10 << 20)
+    with pytest.raises(ResolutionError, match=r"no resolution fits \(this tile needs at least 4 texels along u\)"):
+        woven_maps(plain(), 8)
+
+
+@pytest.mark.parametrize("kwargs, texels, suggested", [
+    (dict(gap_fraction=0.99), "the warp yarn is 0.32 texels wide (gap fraction 1.000 instead of the requested 0.990)", 798),
+    (dict(yarn_width=0.01), "the warp yarn is 0.64 texels wide (gap fraction 1.000)", 400),
+])
+def test_a_yarn_narrower_than_a_texel_warns(kwargs, texels, suggested):
+    """Sampled at texel centres, a yarn under a texel wide is mostly missed: an invisible
+    cloth (gap fraction 1) needs a warning naming the resolution that shows the yarn."""
+    from mscloth.maps.generator_support import MapsWarning
+
+    with pytest.warns(MapsWarning) as caught:
+        maps = woven_maps(plain(), 128, **kwargs)
+    assert float(maps.gap.mean()) == 0.0
+    text = str(caught[0].message)
+    assert texels in text and f"resolution {suggested} (texels along u) or more resolves it" in text
+    assert caught[0].message.naming("--res").endswith(f"--res {suggested} or more resolves it")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        maps = woven_maps(plain(), suggested, **kwargs)  # the suggestion does
+    assert 0.0 < float(maps.gap.mean())
+
+
+def test_a_gap_fraction_far_from_the_requested_one_warns():
+    """Yarns 2.3 texels wide hit 2 or 3 texel centres: 0.56 instead of 0.5."""
+    from mscloth.maps.generator_support import MapsWarning
+
+    with pytest.warns(MapsWarning, match=r"gap fraction 0\.562 instead of the requested 0\.500\): "
+                                         r"resolution 40 \(texels along u\) or more"):
+        woven_maps(plain(), 16, gap_fraction=0.5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        woven_maps(plain(), 40, gap_fraction=0.5)
+        woven_maps(plain(), 128, gap_fraction=0.25)

@@ -199,21 +199,113 @@ def test_drawdown_array_directly():
 
 def test_cli_maps_says_which_res_the_pattern_takes(tmp_path, capsys):
     """8452.wif is 84 ends by 100 picks, 1.19 times as tall as wide: at 2 texels per thread
-    --res (the width) must be in [168, 13762], whichever side runs out first."""
+    and at most 8192 per side --res (the width) must be in [168, 6881], whichever side runs
+    out first."""
     from pathlib import Path
 
     from mscloth.cli import main
 
     wif = str(Path(__file__).resolve().parents[2] / "shared" / "data" / "wif" / "8452.wif")
-    for res, why in (("128", "its height would be 152 texels"), ("13763", "at most 16384 texels")):
+    for res, why in (("128", "its height would be 152 texels"), ("6882", "at most 8192 texels")):
         assert main(["maps", wif, "--res", res, "--out", str(tmp_path / "m")]) == 2
         err = capsys.readouterr().err
-        assert err.startswith(f"mscloth: error: --res must be in [168, 13762] for {wif}, got {res} (")
+        assert err.startswith(f"mscloth: error: --res must be in [168, 6881] for {wif}, got {res} (")
         assert why in err and err.count("\n") == 1
     # The range is exact: its low end generates, one past either end does not.
     pattern = named_pattern(wif)
     assert generate_maps(pattern, 168).resolution == (200, 168)
-    for res in (167, 13763):
-        with pytest.raises(ParameterError, match=r"resolution \(texels along u\) must be in \[168, 13762\]"):
+    for res in (167, 6882):
+        with pytest.raises(ParameterError, match=r"resolution \(texels along u\) must be in \[168, 6881\]"):
             generate_maps(pattern, res)
     assert not (tmp_path / "m").exists()
+
+
+# ------------------------------------------------------------ --res: fits, limits, memory
+def _write_wif(path, ends: int, picks: int, warp_spacing_cm: float = 0.05, weft_spacing_cm: float = 0.05):
+    """A 4-shaft twill WIF of ``ends`` x ``picks``, in centimetres."""
+    lines = ["[WIF]", "Version=1.1", "Date=2024", "Developers=test", "Source Program=test", "[CONTENTS]",
+             "WEAVING=yes", "WARP=yes", "WEFT=yes", "THREADING=yes", "TIEUP=yes", "TREADLING=yes",
+             "[WEAVING]", "Shafts=4", "Treadles=4", "Rising Shed=yes",
+             "[WARP]", f"Threads={ends}", "Units=Centimeters", f"Spacing={warp_spacing_cm}", "Thickness=0.04",
+             "[WEFT]", f"Threads={picks}", "Units=Centimeters", f"Spacing={weft_spacing_cm}", "Thickness=0.04",
+             "[THREADING]", *(f"{k}={(k - 1) % 4 + 1}" for k in range(1, ends + 1)),
+             "[TIEUP]", "1=1,2", "2=2,3", "3=3,4", "4=4,1",
+             "[TREADLING]", *(f"{k}={(k - 1) % 4 + 1}" for k in range(1, picks + 1))]
+    path.write_text("\n".join(lines) + "\n")
+    return str(path)
+
+
+def test_default_res_fits_a_tall_draft_in_the_cli_and_the_bsdf(tmp_path, capsys):
+    """4 ends x 1000 picks: a tile 250 times as tall as wide takes 8 to 32 texels along u;
+    the default was 128 (32000 tall), refused although the user gave no resolution."""
+    from mscloth.cli import main
+    from mscloth.maps.builtin import resolve_pattern
+
+    wif = _write_wif(tmp_path / "tall.wif", 4, 1000)
+    assert main(["maps", wif, "--out", str(tmp_path / "m")]) == 0
+    assert "generated 32x8000 maps" in capsys.readouterr().out
+    assert resolve_pattern(wif).resolution == (8000, 32)
+
+
+def test_no_res_fits_a_draft_says_so_in_one_line(tmp_path, capsys):
+    """4 ends x 50 picks, the picks 100 times as far apart as the ends: any width that holds
+    the ends (8 texels) is 10000 texels tall. No --res can help, given or not: say what can."""
+    from mscloth.cli import main
+
+    wif = _write_wif(tmp_path / "far.wif", 4, 50, warp_spacing_cm=0.01, weft_spacing_cm=1.0)
+    for extra in ([], ["--res", "64"]):
+        assert main(["maps", wif, *extra, "--out", str(tmp_path / "m")]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"mscloth: error: no --res fits {wif}: at its aspect H/W = 1250, a tile as wide "
+                              "as its 4 warp ends need (8 texels) would be 10000 texels tall, more than the "
+                              "8192 a tile side may have; fewer weft picks per repeat, or weft picks spaced "
+                              "more closely, would fit\n")
+        assert err.count("\n") == 1 and "got" not in err and "default" not in err
+    assert not (tmp_path / "m").exists()
+
+
+def test_cli_maps_res_stops_at_the_bsdfs_8192(tmp_path, capsys, monkeypatch):
+    from mscloth.cli import main
+    from mscloth.maps import generate
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("--res 8193 was taken")  # (and would need ~40 GiB)
+    monkeypatch.setattr(generate, "generate_maps", refuse)
+    with pytest.raises(SystemExit):
+        main(["maps", "plain", "--res", "8193", "--out", str(tmp_path / "m")])
+    assert "expected an integer in [8, 8192], got 8193" in capsys.readouterr().err
+
+
+def test_cli_maps_refuses_what_would_not_fit_in_memory(tmp_path, capsys, monkeypatch):
+    from mscloth.cli import main
+    from mscloth.maps import generator_support
+
+    monkeypatch.setattr(generator_support, "available_memory", lambda: 200 << 20)
+    assert main(["maps", "plain", "--res", "1024", "--out", str(tmp_path / "m")]) == 2
+    err = capsys.readouterr().err
+    assert err == ("mscloth: error: --res 1024 needs about 704 MiB of memory for its maps, but 200 MiB is "
+                   "available: --res 472 or less fits\n")
+    assert not (tmp_path / "m").exists()
+
+
+def test_cli_maps_turns_memory_error_into_one_line(tmp_path, capsys, monkeypatch):
+    from mscloth.cli import main
+    from mscloth.maps import generate
+
+    def exhausted(*args, **kwargs):
+        raise MemoryError
+    monkeypatch.setattr(generate, "generate_maps", exhausted)
+    assert main(["maps", "plain", "--res", "64", "--out", str(tmp_path / "m")]) == 2
+    assert capsys.readouterr().err == ("mscloth: error: ran out of memory making the maps of plain at 64 texels "
+                                       "along u; give a smaller --res\n")
+
+
+@pytest.mark.parametrize("flag, value, suggested", [("--gap-fraction", "0.99", 798), ("--yarn-width", "0.01", 400)])
+def test_cli_maps_warns_of_an_invisible_yarn_naming_res(tmp_path, capsys, flag, value, suggested):
+    from mscloth.cli import main
+
+    assert main(["maps", "plain", "--res", "128", flag, value, "--out", str(tmp_path / "m")]) == 0
+    captured = capsys.readouterr()
+    assert "gap fraction 1.000" in captured.out
+    warning = [line for line in captured.err.splitlines() if line.startswith("mscloth: warning: ")]
+    assert len(warning) == 1 and warning[0].endswith(f"--res {suggested} or more resolves it"), captured.err

@@ -83,6 +83,26 @@ def test_multiscale_cloth_under_path_warns_once_to_use_clothpath():
     assert "clothpath" in messages[0] and "PathIntegrator" in messages[0] and "'a'" in messages[0]
 
 
+@pytest.mark.parametrize("wrap", [
+    lambda cloth: {"type": "blendbsdf", "weight": 0.2, "a": {"type": "diffuse"}, "b": cloth},
+    lambda cloth: {"type": "mask", "opacity": 0.9, "bsdf": cloth},
+    lambda cloth: {"type": "blendbsdf", "weight": 0.5, "a": {"type": "diffuse"},
+                   "b": {"type": "mask", "opacity": 0.9, "bsdf": cloth}},
+], ids=["blendbsdf", "mask", "mask in blendbsdf"])
+def test_cloth_nested_in_another_bsdf_is_checked_as_cloth(tmp_path, wrap):
+    """Before the fix only a shape's own BSDF was looked at: a cloth inside ``blendbsdf``
+    or ``mask`` on a mesh without UVs, under ``path``, gave no warning at all."""
+    flat = _ply(tmp_path / "flat.ply", uvs=False)
+    messages = _scene_warnings(load_dict, _scene(sheet={"type": "ply", "filename": flat, "bsdf": wrap(MULTISCALE)}))
+    assert len(messages) == 2, messages
+    assert "'sheet'" in messages[0] and "without UV" in messages[0]
+    assert "'sheet'" in messages[1] and "PathIntegrator" in messages[1]
+    # Fibre-level cloth under clothpath on a mesh with UVs: nothing to say.
+    good = _ply(tmp_path / "uv.ply", uvs=True)
+    assert _scene_warnings(load_dict, _scene("clothpath", sheet={"type": "ply", "filename": good,
+                                                                 "bsdf": wrap(FIBRE)})) == []
+
+
 @pytest.mark.parametrize("bsdf,integrator", [
     (FIBRE, "path"),                    # fibre-level cloth needs no footprints
     (MULTISCALE, "clothpath"),

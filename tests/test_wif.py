@@ -49,7 +49,8 @@ WHITE = (1.0, 1.0, 1.0)
 # name: (warp ends, weft picks, shafts, treadles, warp colours, weft colours) -- from the files.
 REAL = {
     "2229": (24, 24, 3, 4, [GREEN_101] * 24, [WHITE] * 24),
-    # Lists colours for threads 1-2 only although Threads=3: thread 3 falls back to white.
+    # Lists colours for threads 1-2 only although Threads=3: thread 3 falls back to white
+    # (with a warning per side: see test_real_files_warn_only_where_the_draft_is_odd).
     "3parallelwarps": (3, 3, 3, 3, [GREEN_102, GREEN_102, WHITE], [WHITE] * 3),
     "41753": (48, 48, 10, 10, [BLUE] * 48, [WHITE] * 48),
     "54235plain": (2, 2, 2, 2, [GREEN_102] * 2, [WHITE] * 2),
@@ -614,12 +615,103 @@ def test_liftplan_used_when_both_present():
     np.testing.assert_array_equal(d.drawdown, [[T, F, F, F]] * 4)
 
 
+def random_draft(rng: random.Random, liftplan: bool, rising: bool) -> tuple[str, np.ndarray]:
+    """A random small draft (shafts on several ends, several treadles per pick, repeated and
+    absent numbers, empty lines, untidy spacing) and its drawdown by nested loops."""
+    n_shafts, n_treadles = rng.randint(1, 6), rng.randint(1, 5)
+    n_warp, n_weft = rng.randint(1, 9), rng.randint(1, 9)
+
+    def numbers(top: int) -> list[int]:
+        return rng.choices(range(1, top + 1), k=rng.choice([0, 1, 1, 2, 3, 5]))   # k=0: empty line
+
+    def lines(rows: dict[int, list[int]]) -> str:
+        sep = lambda: rng.choice([",", ", ", " ,", "\t,\t"])  # noqa: E731
+        return "\n".join(f"{k}={sep().join(map(str, v))}" for k, v in rows.items())
+
+    threading = {j: numbers(n_shafts) for j in range(1, n_warp + 1) if rng.random() < 0.9}
+    threading.setdefault(1, [1])                        # an empty [THREADING] is an error
+    if liftplan:
+        lifts = {i: numbers(n_shafts) for i in range(1, n_weft + 1) if rng.random() < 0.9}
+        lifts.setdefault(1, [])
+        sections = dict(liftplan=lines(lifts))
+    else:
+        tieup = {t: numbers(n_shafts) for t in range(1, n_treadles + 1) if rng.random() < 0.8}
+        treadling = {i: numbers(n_treadles) for i in range(1, n_weft + 1) if rng.random() < 0.9}
+        treadling.setdefault(1, [])
+        lifts = {i: {s for t in ts for s in tieup.get(t, [])} for i, ts in treadling.items()}
+        sections = dict(tieup=lines(tieup), treadling=lines(treadling))
+    text = wif(f"Shafts={n_shafts}\nTreadles={n_treadles}\nRising Shed={'yes' if rising else 'no'}",
+               lines(threading), warp=f"Threads={n_warp}", weft=f"Threads={n_weft}",
+               extra="[TEXT]\nTitle=random\n", **sections)       # an empty last line means truncation
+    expected = np.zeros((n_weft, n_warp), dtype=bool)
+    for i in lifts:                                     # unlisted picks lift nothing
+        raised = set(lifts[i]) if rising else set(range(1, n_shafts + 1)) - set(lifts[i])
+        for j in range(1, n_warp + 1):
+            expected[i - 1, j - 1] = any(s in raised for s in threading.get(j, []))
+    return text, expected
+
+
+@pytest.mark.parametrize("liftplan", [True, False], ids=["liftplan", "tieup"])
+@pytest.mark.parametrize("rising", [True, False], ids=["rising", "sinking"])
+def test_drawdown_matches_nested_loops_on_random_drafts(liftplan, rising):
+    """The drawdown's matrix products (float32 BLAS) against the definition, thread by thread."""
+    rng = random.Random(f"{liftplan}-{rising}")
+    for _ in range(150):
+        text, expected = random_draft(rng, liftplan, rising)
+        d = parse_wif(text, name="r.wif")
+        assert d.meta["lift_source"] == ("liftplan" if liftplan else "treadling")
+        np.testing.assert_array_equal(d.drawdown, expected, err_msg=text)
+
+
+def test_large_draft_reads_exactly():
+    """2048 ends x 2048 picks on 1024 shafts (a jacquard-sized draft): the drawdown by the
+    float32 product is exact. (Its speed, 15 s -> 0.4 s, is a measurement: performance log
+    L70, not asserted here.)"""
+    n, shafts = 2048, 1024
+    join = ",".join
+    text = wif(f"Shafts={shafts}\nTreadles={shafts}",
+               "\n".join(f"{j + 1}={j % shafts + 1}" for j in range(n)),
+               tieup="\n".join(f"{t + 1}=" + join(str((t + k) % shafts + 1) for k in range(shafts // 2))
+                               for t in range(shafts)),
+               treadling="\n".join(f"{i + 1}={i % shafts + 1}" for i in range(n)),
+               warp=f"Threads={n}", weft=f"Threads={n}")
+    d = parse_wif(text, name="big.wif")
+    assert d.drawdown.shape == (n, n)
+    # A 512/512 twill: pick i lifts shafts i..i+511 (mod 1024), end j is on shaft j (mod 1024).
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    np.testing.assert_array_equal(d.drawdown, (j - i) % shafts < shafts // 2)
+
+
 def test_implausible_counts_refused():
     text = PLAIN.replace("[WARP]\nThreads=2", "[WARP]\nThreads=99999999")
     expect_error(text, "big.wif", f"[WARP] line {line_of(text, 'WARP', 'Threads=99999999')}: ",
                  "beyond the supported")
     text = PLAIN.replace("[WEFT]\nThreads=2\n", "").replace("[TREADLING]\n1=1", "[TREADLING]\n123456789=1")
     expect_error(text, "big.wif", "[TREADLING] line", "beyond the supported")
+
+
+def test_thread_limit_is_what_maps_can_hold():
+    """A draft with more threads than a largest (8192-texel) tile has room for, at the maps'
+    least texels per thread, is refused when read, naming file, section, line and limit."""
+    from mscloth.maps import woven
+    from mscloth.maps.generator_support import MAX_RESOLUTION
+    from mscloth.patterns.wif import MAX_THREADS
+
+    assert MAX_THREADS == 4096
+    assert MAX_THREADS * woven.MIN_TEXELS_PER_THREAD == MAX_RESOLUTION == 8192
+    text = PLAIN.replace("[WARP]\nThreads=2", "[WARP]\nThreads=4097")
+    expect_error(text, "wide.wif", f"wide.wif: [WARP] line {line_of(text, 'WARP', 'Threads=4097')}: "
+                                   f"4097 threads is beyond the supported 4096")
+    # Without Threads=, the count is the highest thread number used: refused at that line.
+    text = PLAIN.replace("[WARP]\nThreads=2\n", "").replace("[THREADING]\n1=1", "[THREADING]\n4097=1")
+    expect_error(text, "wide.wif", f"wide.wif: [THREADING] line {line_of(text, 'THREADING', '4097=1')}: "
+                                   f"4097 warp ends is beyond the supported 4096")
+    text = PLAIN.replace("[WEFT]\nThreads=2\n", "").replace("[TREADLING]\n1=1", "[TREADLING]\n4097=1")
+    expect_error(text, "tall.wif", f"tall.wif: [TREADLING] line {line_of(text, 'TREADLING', '4097=1')}: "
+                                   f"4097 weft picks is beyond the supported 4096")
+    # The limit itself is fine.
+    d = parse_wif(PLAIN.replace("[WARP]\nThreads=2", "[WARP]\nThreads=4096"))
+    assert d.drawdown.shape == (2, 4096)
 
 
 @needs_data
@@ -725,6 +817,51 @@ def test_partial_spacing_section_warns():
             "assuming 0.5 mm for them (tile 1.2 mm wide)")):
         d = parse_wif(text, name="t.wif")
     np.testing.assert_allclose(d.warp_spacing, [0.7, 0.5])
+
+
+# SPACED with a colour table: [WARP COLORS] / [WEFT COLORS] bodies are appended per test.
+PALETTE = SPACED + "[COLOR PALETTE]\nRange=0,255\n[COLOR TABLE]\n1=255,0,0\n2=0,0,255\n"
+
+
+def test_thread_colours_missing_from_colour_section_warn_once_per_section():
+    text = PALETTE.replace("Threads=2", "Threads=3", 1).replace("[THREADING]\n1=1\n2=2",
+                                                                 "[THREADING]\n1=1\n2=2\n3=1")
+    partial = text + "[WARP COLORS]\n1=2\n[WEFT COLORS]\n2=1\n"
+    assert wif_warnings(parse_wif, partial, name="c.wif") == [
+        "c.wif: [WARP COLORS] gives no colour for 2 of 3 warp ends (first: end 2); white used",
+        "c.wif: [WEFT COLORS] gives no colour for 1 of 2 weft picks (first: pick 1); white used"]
+    d = parse_wif(partial)
+    np.testing.assert_allclose(d.warp_colors, [[0, 0, 1], WHITE, WHITE])
+    np.testing.assert_allclose(d.weft_colors, [WHITE, [1, 0, 0]])
+    assert d.meta["warnings"][-1].startswith("[WEFT COLORS] gives no colour for 1 of 2")
+    # An empty value gives no colour either; numbering from 0 is kept in the message.
+    empty0 = text + "[WARP COLORS]\n0=1\n1=\n2=2\n[WEFT COLORS]\n1=1\n2=1\n"
+    assert wif_warnings(parse_wif, empty0, name="c.wif") == [
+        "c.wif: [WARP COLORS] gives no colour for 1 of 3 warp ends (first: end 1); white used"]
+    # Every thread listed, or a default Color= for the rest, or no colour section: no guess.
+    full = text + "[WARP COLORS]\n1=1\n2=1\n3=2\n[WEFT COLORS]\n1=1\n2=1\n"
+    assert wif_warnings(parse_wif, full, name="c.wif") == []
+    defaulted = partial.replace("[WARP]\n", "[WARP]\nColor=1\n").replace("[WEFT]\n", "[WEFT]\nColor=2\n")
+    assert wif_warnings(parse_wif, defaulted, name="c.wif") == []
+    np.testing.assert_allclose(parse_wif(defaulted).warp_colors, [[0, 0, 1], [1, 0, 0], [1, 0, 0]])
+    assert wif_warnings(parse_wif, text, name="c.wif") == []
+
+
+def test_palette_range_16_bit_with_8_bit_colours_warns():
+    text = PALETTE.replace("Range=0,255", "Range=0,65535") + "[WARP COLORS]\n1=1\n2=2\n"
+    assert wif_warnings(parse_wif, text, name="p.wif") == [
+        "p.wif: [COLOR PALETTE] Range=0,65535 but every colour is <= 255: the cloth will be nearly "
+        "black; was Range=0,255 meant?"]
+    d = parse_wif(text)                 # read as the file says, all the same
+    np.testing.assert_allclose(d.warp_colors, [[255 / 65535, 0, 0], [0, 0, 255 / 65535]])
+    assert d.meta["warnings"] == [
+        "[COLOR PALETTE] Range=0,65535 but every colour is <= 255: the cloth will be nearly black; "
+        "was Range=0,255 meant?"]
+    # 16-bit values, an all-black table, or an 8-bit Range: nothing to say.
+    for quiet in (text.replace("1=255,0,0", "1=65535,0,0"),
+                  text.replace("1=255,0,0", "1=0,0,0").replace("2=0,0,255", "2=0,0,0"),
+                  text.replace("Range=0,65535", "Range=0,255")):
+        assert wif_warnings(parse_wif, quiet, name="p.wif") == []
 
 
 def test_text_before_first_section_warns_once():
@@ -844,10 +981,13 @@ def test_maps_keep_the_warnings_and_cached_maps_do_not_repeat_them(tmp_path):
 def test_real_files_warn_only_where_the_draft_is_odd():
     """The shared handweaving.net files give Units, Spacing, Shafts and a full threading: only
     3parallelwarps warns, as it should: its three ends all sit on shaft 1, which every pick
-    lifts or leaves down, so each pick lies over or under the whole warp."""
+    lifts or leaves down, so each pick lies over or under the whole warp; and its colour
+    sections stop at thread 2 of 3, with no default Color=, so thread 3 is white by a guess."""
     found = {stem: wif_warnings(read_wif, WIF_DIR / f"{stem}.wif") for stem in sorted(REAL)}
     assert found.pop("3parallelwarps") == [
         "3parallelwarps.wif: [TIEUP]: no weft pick interlaces with the warp: the treadles of every pick "
         "lift none or all of the shafts the warp is threaded on, so each pick lies over or under every "
-        "warp end across the whole tile"]
+        "warp end across the whole tile",
+        "3parallelwarps.wif: [WARP COLORS] gives no colour for 1 of 3 warp ends (first: end 3); white used",
+        "3parallelwarps.wif: [WEFT COLORS] gives no colour for 1 of 3 weft picks (first: pick 3); white used"]
     assert found == {stem: [] for stem in found}

@@ -7,6 +7,8 @@ Typical use::
     mscloth.register()
     bsdf = mi.load_dict({"type": "cloth", "pattern": "plain"})
 """
+import importlib
+
 from .variant import configure_llvm, default_variant, set_default_variant
 from .errors import ClothError, MapsError, ParameterError, PatternError
 
@@ -16,9 +18,39 @@ __version__ = "0.1.0"
 configure_llvm()
 
 
+#: Every module the plugins import lazily (constructors, ``traverse``, ``parameters_changed``,
+#: renders; ``numpy.random`` on first use): :func:`register` imports them first, since
+#: Mitsuba's scene loader builds plugins on several threads at once and first imports racing
+#: there failed (``KeyError: 'mscloth.patterns'``, "partially initialized module").
+PLUGIN_MODULES = (
+    "numpy.random",
+    "mscloth.loading", "mscloth.scene_checks", "mscloth.fabrics",
+    "mscloth.patterns", "mscloth.patterns.draft", "mscloth.patterns.knit", "mscloth.patterns.named",
+    "mscloth.patterns.weaves", "mscloth.patterns.wif",
+    "mscloth.maps.builtin", "mscloth.maps.cloth_maps", "mscloth.maps.generate", "mscloth.maps.generator_support",
+    "mscloth.maps.knit", "mscloth.maps.woven",
+    "mscloth.precompute", "mscloth.precompute.direction_bins", "mscloth.precompute.tables",
+    "mscloth.precompute._util",
+    "mscloth.bsdf.sky_albedo", "mscloth.cache", "mscloth.atomic",
+)
+
+#: Submodules that ``mscloth.NAME`` imports on first use (the README's ``mscloth.loading``),
+#: so that ``import mscloth`` stays light: it does not import Mitsuba.
+_SUBMODULES = ("fabrics", "loading", "maps", "patterns", "scene_checks")
+
+
+def __getattr__(name: str):
+    if name in _SUBMODULES:
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 def register() -> None:
     """Register mscloth's Mitsuba plugins (the ``cloth`` BSDF and the ``clothpath``
-    integrator) for the active variant (idempotent)."""
+    integrator) for the active variant (idempotent); first import every module they
+    import lazily (:data:`PLUGIN_MODULES`), so that scenes load safely on many threads."""
+    for module in PLUGIN_MODULES:
+        importlib.import_module(module)
     from .bsdf.registry import register_plugins
     from .integrators import register_integrators
 

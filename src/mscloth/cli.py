@@ -28,6 +28,13 @@ def _positive_int(low: int, high: int):
     return parse
 
 
+def _maps_res(text: str) -> int:
+    """``maps --res``: up to the generators' largest tile side (imported here: it brings NumPy)."""
+    from .maps.generator_support import MAX_RESOLUTION
+
+    return _positive_int(8, MAX_RESOLUTION)(text)
+
+
 def cmd_demo(args) -> int:
     import mitsuba as mi
 
@@ -257,6 +264,7 @@ def _flag(parameter: str) -> str:
 def cmd_maps(args) -> int:
     from .maps.builtin import default_resolution
     from .maps.generate import generate_maps
+    from .maps.generator_support import MapsWarning, format_bytes
     from .maps.preview import write_previews
     from .patterns.named import named_pattern
 
@@ -271,11 +279,9 @@ def cmd_maps(args) -> int:
         if params:
             raise ClothError(f"{_flag(next(iter(params)))} does not apply to a fabric preset, whose yarns are "
                              "part of it")
-        resolution = args.res or preset.default_resolution()
         pattern = None
     else:
         pattern = named_pattern(args.pattern)
-        resolution = args.res or default_resolution(pattern)
     if pattern is not None:
         from .maps.generate import generator_parameters
 
@@ -288,22 +294,42 @@ def cmd_maps(args) -> int:
         if existing:
             raise ClothError(f"{existing[0]} exists; pass --force to overwrite")
     _writable_outputs(out / "maps.json")  # (names an --out that is a file)
-    started = time.perf_counter()
-    print(f"mscloth maps: {args.pattern} at {resolution} texels along u ...", flush=True)
+    resolution = args.res
     try:
-        maps = preset.maps(resolution) if args.fabric else generate_maps(pattern, resolution, **params)
+        if resolution is None:
+            resolution = preset.default_resolution() if args.fabric else default_resolution(pattern)
+        started = time.perf_counter()
+        print(f"mscloth maps: {args.pattern} at {resolution} texels along u ...", flush=True)
+        # The generators' warnings name ``resolution``; here the flag is --res.
+        with warnings.catch_warnings(record=True) as caught:
+            maps = preset.maps(resolution) if args.fabric else generate_maps(pattern, resolution, **params)
+        for warning in caught:
+            message = warning.message
+            text = message.naming("--res") if isinstance(message, MapsWarning) else str(message)
+            warnings.warn_explicit(text, warning.category, warning.filename, warning.lineno)
+        generated = time.perf_counter() - started
+        maps.save(out, overwrite=args.force)
+        previews = write_previews(maps, out, overwrite=args.force)
     except ResolutionError as error:
+        if getattr(error, "needed", None) is not None:  # the tile would not fit in memory
+            given = f"--res {args.res}" if args.res else f"the default resolution ({resolution} texels along u)"
+            fix = (f"--res {error.largest} or less fits" if error.largest is not None else
+                   "no --res fits; free memory or use a pattern with fewer threads")
+            raise ClothError(f"{given} needs about {format_bytes(error.needed)} of memory for its maps, "
+                             f"but {format_bytes(error.available)} is available: {fix}") from None
         if error.low is None:
             raise
         # In the user's terms: the flag, and the values it can take for this pattern.
-        given = f"got {args.res}" if args.res else f"its default {resolution} does not fit"
         if error.low > error.high:
             raise ClothError(f"no --res fits {args.pattern}: {error.reason}") from None
-        raise ClothError(f"--res must be in [{error.low}, {error.high}] for {args.pattern}, {given} "
+        if not args.res:  # (a default that does not fit: its numbers are none the user gave)
+            raise ClothError(f"the default resolution of {args.pattern} does not fit its tile; give --res in "
+                             f"[{error.low}, {error.high}]") from None
+        raise ClothError(f"--res must be in [{error.low}, {error.high}] for {args.pattern}, got {args.res} "
                          f"({error.reason})") from None
-    generated = time.perf_counter() - started
-    maps.save(out, overwrite=args.force)
-    previews = write_previews(maps, out, overwrite=args.force)
+    except MemoryError:
+        raise ClothError(f"ran out of memory making the maps of {args.pattern} at {resolution} texels along u; "
+                         "give a smaller --res") from None
     h, w = maps.resolution
     print(f"generated {w}x{h} maps in {generated:.2f} s; gap fraction {1 - maps.gap.mean():.3f}")
     print(f"wrote {out / 'maps.npz'}, {out / 'maps.json'} and {len(previews)} previews "
@@ -451,8 +477,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     maps = sub.add_parser("maps", help="generate the fibre-level maps of a pattern (weave, WIF draft, knit)")
     maps.add_argument("pattern", help="pattern name (plain, twill-2-1-S, satin-8-3, basket-2, jersey, rib-2-2, garter, seed) or a .wif file")
-    maps.add_argument("--res", type=_positive_int(8, 16384), default=None,
-                      help="texels along u (default: 32 per thread, in [128, 320]; knits 64 per wale, in [64, 320]; at least 8 per thread or wale up to 1024)")
+    maps.add_argument("--res", type=_maps_res, default=None,
+                      help="texels along u (default: 32 per thread, in [128, 320]; knits 64 per wale, in [64, 320]; at least 8 per thread or wale up to 1024; always one the tile takes)")
     maps.add_argument("--out", required=True, help="output directory")
     maps.add_argument("--force", action="store_true", help="overwrite maps already in --out")
     maps.add_argument("--yarn-width", type=float, default=None, help="yarn width / thread spacing, (0, 1]")

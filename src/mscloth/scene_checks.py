@@ -1,6 +1,7 @@
 """Warnings for scenes that load and render, but not as they should with ``cloth``.
 
-Checked once a scene is loaded by :mod:`mscloth.loading` or ``mscloth render``:
+Checked once a scene is loaded by :mod:`mscloth.loading` or ``mscloth render``, for each
+shape whose BSDF is ``cloth`` or nests one (in ``blendbsdf``, ``mask``, ``bumpmap``...):
 
 * a mesh without UVs under ``cloth``: Mitsuba then gives each triangle barycentric UVs, so
   every triangle holds a squeezed copy of the tile and the weave blurs to nothing. Analytic
@@ -18,6 +19,7 @@ from __future__ import annotations
 import re
 import warnings
 
+import mitsuba as mi
 import numpy as np
 
 from .plugin_registry import registered_class
@@ -60,6 +62,29 @@ def _integrator_name(integrator) -> str:
     return str(integrator).split("[", 1)[0].strip() or integrator.class_name()
 
 
+def cloths_in(bsdf, cloth: type) -> list:
+    """The ``cloth`` BSDFs (instances of ``cloth``) that ``bsdf`` is or nests, at any depth
+    (``blendbsdf``, ``mask``, ``bumpmap``... hand theirs to ``traverse``)."""
+    found, seen = [], set()
+
+    class Nested(mi.TraversalCallback):
+        def put(self, name, value, flags, cpptype=None):
+            if isinstance(value, mi.BSDF):
+                visit(value)
+
+    def visit(node):
+        if node is None or node in seen:
+            return
+        seen.add(node)
+        if isinstance(node, cloth):
+            found.append(node)
+        else:
+            node.traverse(Nested())
+
+    visit(bsdf)
+    return found
+
+
 def scene_problems(scene) -> list[str]:
     """What renders worse than it should in ``scene``: one message per kind of problem."""
     cloth = registered_class("cloth")
@@ -67,8 +92,8 @@ def scene_problems(scene) -> list[str]:
         return []
     without_uvs, non_finite, multiscale = [], [], []
     for index, shape in enumerate(scene.shapes()):
-        bsdf = shape.bsdf()
-        if not isinstance(bsdf, cloth):
+        cloths = cloths_in(shape.bsdf(), cloth)
+        if not cloths:
             continue
         if shape.is_mesh() and not shape.has_vertex_texcoords():
             without_uvs.append(shape_name(shape, index))
@@ -76,7 +101,7 @@ def scene_problems(scene) -> list[str]:
             bad = int(np.count_nonzero(~np.isfinite(np.asarray(shape.vertex_texcoords_buffer()))))
             if bad:
                 non_finite.append(f"{shape_name(shape, index)} ({bad} non-finite)")
-        if bsdf.footprint_shading:
+        if any(c.footprint_shading for c in cloths):
             multiscale.append(shape_name(shape, index))
     problems = []
     if without_uvs:

@@ -100,6 +100,8 @@ def make_cloth_class():
             self.fibre.samplers = LobeSamplers.for_fuzz(self.params.sheen_roughness, p.sheen_roughness,
                                                         p.sheen_thickness)
             self._calibrate(uv_scale, uv_scale_v)
+            # What a refused params.update() puts back (parameters_changed).
+            self._accepted = self._saved_values(EXPOSED)
 
         # ------------------------------------------------------------------
         # What is built from parameters: tables, calibration
@@ -324,20 +326,24 @@ def make_cloth_class():
             energy bound; a changed fuzz rebuilds the samplers; a changed roughness rebuilds
             what was built from it (the tables where shading reads them, then the
             calibration), as a BSDF loaded with it would have. Other parameters are read
-            live. No keys: all of them may have changed (Mitsuba's convention)."""
+            live. No keys: all of them may have changed (Mitsuba's convention).
+
+            A refused update raises ParameterError with the changed parameters back at
+            their last accepted values: Mitsuba has written the new ones before calling
+            this, and a caught error must not leave them to shade with."""
             changed = set(keys) if keys else set(EXPOSED)
             where = f"cloth [{self.label}]"
-            textures = self.params.textures
-            bounds = {name: check_spectrum(name, textures[name], where) for name in SPECTRUM_PARAMETERS
-                      if name in changed}
-            if changed & set(ENERGY_PARAMETERS):
-                check_energy({name: bounds[name] if name in bounds else check_spectrum(name, textures[name], where)
-                              for name in ENERGY_PARAMETERS}, where)
+            try:
+                build = self._checked_build(changed, where)
+            except ParameterError as error:
+                names = [name for name in EXPOSED if name in changed]
+                self._restore(names)
+                kept = "value of" if len(names) == 1 else "values of"
+                raise ParameterError(f"{error}; kept the previous {kept} {', '.join(names)}") from None
             self.shading.sky_table = None  # built from every parameter: again on request
             self._sky_tables = {}
             for name in FLOAT_PARAMETERS:
                 if name in changed and name in EXPOSED:
-                    _check_float(name, self._value(name), where)
                     self._pin(name, getattr(self.params, name))
             if "uv_scale_v" in changed and keys:
                 self._uv_aspect = None  # given now
@@ -349,17 +355,11 @@ def make_cloth_class():
                 else:
                     self.params.uv_scale_v = v
                 self._pin("uv_scale_v", self.params.uv_scale_v)
+                changed.add("uv_scale_v")
             if changed & {"sheen_roughness", "sheen_thickness"}:
                 self.fibre.samplers = LobeSamplers.for_fuzz(self.params.sheen_roughness, self._value("sheen_roughness"),
                                                             self._value("sheen_thickness"))
-            roughness = self._value("roughness")
-            if "roughness" in changed and np.float32(roughness) != np.float32(self.build.roughness):
-                try:
-                    build = self.build.with_roughness(roughness)
-                except ParameterError as error:
-                    reason = str(error).removeprefix("cloth: ")
-                    raise ParameterError(f"{where}: roughness {roughness:g} does not fit the tables: {reason}; "
-                                         "reload the scene with other direction_bins or direction_rank") from None
+            if build is not None:
                 tables_change = self.build.tables_read_roughness
                 self.build = build
                 if tables_change:
@@ -367,6 +367,58 @@ def make_cloth_class():
                 elif self.estimator is not None:
                     self.estimator.roughness = build.roughness
                 self._calibrate(self._value("uv_scale"), self._value("uv_scale_v"))
+            self._accepted.update(self._saved_values(name for name in EXPOSED if name in changed))
+
+        def _checked_build(self, changed, where):
+            """Check the ``changed`` parameters' values (ParameterError naming ``where``);
+            the new BuildParameters if the roughness changed, else None. Changes nothing."""
+            textures = self.params.textures
+            bounds = {name: check_spectrum(name, textures[name], where) for name in SPECTRUM_PARAMETERS
+                      if name in changed}
+            if changed & set(ENERGY_PARAMETERS):
+                check_energy({name: bounds[name] if name in bounds else check_spectrum(name, textures[name], where)
+                              for name in ENERGY_PARAMETERS}, where)
+            for name in FLOAT_PARAMETERS:
+                if name in changed and name in EXPOSED:
+                    _check_float(name, self._value(name), where)
+            roughness = self._value("roughness")
+            if "roughness" not in changed or np.float32(roughness) == np.float32(self.build.roughness):
+                return None
+            try:
+                return self.build.with_roughness(roughness)
+            except ParameterError as error:
+                reason = str(error).removeprefix("cloth: ")
+                raise ParameterError(f"{where}: roughness {roughness:g} does not fit the tables: {reason}; "
+                                     "reload the scene with other direction_bins or direction_rank") from None
+
+        def _saved_values(self, names) -> dict:
+            """Copies of parameters ``names``' values as they are now (:meth:`_restore`): a
+            float's Float, a texture's every traversed value (what ``params.update()``
+            writes into it). Copies: what ``traverse`` hands out is changed in place."""
+            saved = {}
+            for name in names:
+                if name in self.params.textures:
+                    saved[name] = {key: type(value)(value)
+                                   for key, value in mi.traverse(self.params.textures[name]).items()}
+                else:
+                    value = getattr(self.params, name)
+                    saved[name] = type(value)(value)
+            return saved
+
+        def _restore(self, names):
+            """Put parameters ``names`` back at their last accepted values (a refused update)."""
+            for name in names:
+                saved = self._accepted[name]
+                if name in self.params.textures:
+                    params = mi.traverse(self.params.textures[name])
+                    for key, value in saved.items():
+                        params[key] = value  # a no-op where unchanged
+                    params.update()
+                elif dr.is_jit_v(mi.Float):
+                    mi.set_property(getattr(self.params, name), saved)  # in place: params holds it
+                    self._pin(name, getattr(self.params, name))
+                else:
+                    setattr(self.params, name, saved)
 
         def to_string(self):
             h, w = self.maps.resolution

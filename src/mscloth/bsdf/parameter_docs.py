@@ -48,7 +48,7 @@ PARAMETER_DOCS: tuple[ParameterDoc, ...] = (
         "resolution", "integer", "0",
         "Texels along u when generating a pattern, in [8, 8192]. 0: 32 per thread within [128, "
         "320] texels (knits 64 per wale within [64, 320]; at least 8 per thread or wale, up to "
-        "1024); with `fabric`, the fabric's own (16 per end, 8 for linen and 4 for silk "
+        "1024; moved into the widths a tall or wide tile takes); with `fabric`, the fabric's own (16 per end, 8 for linen and 4 for silk "
         "shantung, whose slubby tiles are long, twice that per wale, within [32, 512])."),
     ParameterDoc(
         "uv_scale", "float", "1.0",
@@ -150,7 +150,10 @@ FLAGS_NOTE = (
     "`params.update()`), **∂** differentiable, **D** discontinuous (none here). A parameter is "
     "differentiable where evaluating the BSDF reads it live; `roughness` is also baked into the "
     "footprint's directional tables, so with `multiscale` it carries no gradient, and changing it "
-    "rebuilds those tables (cached) and the lobe calibration. Parameters marked — are read once: "
+    "rebuilds those tables (cached) and the lobe calibration. A render differentiates through "
+    "Mitsuba's `prb` or `direct` (which shade cloth at points); `clothpath` refuses gradients with "
+    "one line, since its samples follow lobe and texel choices a gradient cannot see. Parameters "
+    "marked — are read once: "
     "reload the scene to change them. A texture given for a spectrum is a `bitmap` or a "
     "`checkerboard` (of constants, bitmaps or checkerboards): textures whose values can be bounded, "
     "since the albedos are checked, when loaded and after `params.update()`, to lie in [0, 1] and "

@@ -303,6 +303,27 @@ SKY_TABLE_SHARE = None
 SKY_TABLE_LANES = 1 << 19
 
 
+#: Why ``clothpath`` refuses gradients (performance log L18, L70).
+NOT_DIFFERENTIABLE = (
+    "clothpath: renders are not differentiable: its BSDF samples are drawn with lobe and texel choices "
+    "that follow the cloth's parameters, which a gradient through the path cannot see (and Dr.Jit fails "
+    "to compile some of them); differentiate the scene with Mitsuba's 'prb' integrator (cloth is then "
+    "shaded at points), or render a clothpath image under dr.suspend_grad()")
+
+
+def gradients_requested(scene) -> bool:
+    """Whether a parameter of a BSDF that ``clothpath`` shades through its own calls
+    (``eval_pdf_sample_n``: ``cloth``) carries a gradient here (not under
+    ``dr.suspend_grad``)."""
+    if not dr.is_diff_v(mi.Float):
+        return False
+    for bsdf in contract.distinct_bsdfs(scene, contract.shades_n_directions):
+        params = mi.traverse(bsdf)
+        if any(dr.grad_enabled(params[key]) for key in params.keys()):
+            return True
+    return False
+
+
 def frame_lanes(scene, lanes: int) -> float:
     """Samples per pass of the whole frame whose crop (``scene``'s first sensor's film) a
     pass of ``lanes`` samples renders: a crop of a frame decides as the frame does (``make
@@ -460,6 +481,8 @@ def make_clothpath_class():
                     f"sky_share = {'auto' if self.sky_share is None else self.sky_share}]")
 
         def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
+            if gradients_requested(scene):
+                raise ParameterError(NOT_DIFFERENTIABLE)
             # sky_share auto's pilot runs here, before the render traces: run from within
             # ``sample`` its kernels would evaluate the camera rays traced so far, and the
             # render's kernel would differ (and miss Dr.Jit's cache) with the share stored.
@@ -471,6 +494,12 @@ def make_clothpath_class():
                     and frame_lanes(scene, int(crop[0]) * int(crop[1]) * count) >= SKY_TABLE_LANES:
                 self.pilot_sky_share(scene, count)
             return mi.SamplingIntegrator.render(self, scene, sensor, seed, spp, develop, evaluate)
+
+        def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
+            raise ParameterError(NOT_DIFFERENTIABLE)
+
+        def render_backward(self, scene, params, grad_in, sensor=0, seed=0, spp=0):
+            raise ParameterError(NOT_DIFFERENTIABLE)
 
         def sample(self, scene, sampler, ray, medium=None, active=True):
             if self.max_depth == 0:

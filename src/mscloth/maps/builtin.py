@@ -17,6 +17,7 @@ from ..errors import ParameterError, PatternError
 from ..patterns.named import NAMED, is_wif_path, named_pattern, pattern_names
 from .cloth_maps import JSON_NAME, NPZ_NAME, ClothMaps
 from .generate import generate_maps
+from .generator_support import fit_width
 
 #: Default sampling of generated patterns along u: texels per woven thread and per knit
 #: wale (two legs, so 32 per leg as well), within [MIN, MAX] texels per tile side, but never
@@ -27,7 +28,9 @@ from .generate import generate_maps
 #: tables' build, memory and disk (issue 22): a 24-thread WIF draft at 64 per thread was
 #: 1024^2 texels, 40 s of tables and 442 MiB on disk; at 320^2 (13 texels per thread) its
 #: full directional SAT fits max_table_mib (no rank compression) in ~120 MiB. Scenes that
-#: come close give ``resolution``.
+#: come close give ``resolution``. Whatever these give is then moved into the widths the
+#: tile takes (its generator's fewest texels per thread, the largest tile side, its aspect):
+#: a 600-end draft gets 1200 texels, a 4-end x 1000-pick one a width its height allows.
 DEFAULT_TEXELS_PER_THREAD, DEFAULT_TEXELS_PER_WALE = 32, 64
 MIN_DEFAULT_RESOLUTION, MIN_DEFAULT_KNIT_RESOLUTION, MAX_DEFAULT_RESOLUTION = 128, 64, 320
 MIN_TEXELS_PER_THREAD, LARGEST_DEFAULT_RESOLUTION = 8, 1024
@@ -38,7 +41,8 @@ BUILTIN_PATTERNS = tuple(NAMED)
 
 
 def default_resolution(pattern) -> int:
-    """Texels along u for a generated pattern when the caller gives none."""
+    """Texels along u for a generated pattern when the caller gives none: always one its
+    tile takes (ResolutionError, saying why, if none does)."""
     wales = getattr(pattern, "n_wales", None)
     if wales:
         columns, per_column, least = wales, DEFAULT_TEXELS_PER_WALE, MIN_DEFAULT_KNIT_RESOLUTION
@@ -46,7 +50,24 @@ def default_resolution(pattern) -> int:
         columns = getattr(pattern, "n_warp", None) or 2
         per_column, least = DEFAULT_TEXELS_PER_THREAD, MIN_DEFAULT_RESOLUTION
     texels = min(MAX_DEFAULT_RESOLUTION, max(least, per_column * columns))
-    return int(min(LARGEST_DEFAULT_RESOLUTION, max(texels, MIN_TEXELS_PER_THREAD * columns)))
+    preferred = int(min(LARGEST_DEFAULT_RESOLUTION, max(texels, MIN_TEXELS_PER_THREAD * columns)))
+    shape = _tile_shape(pattern)
+    return preferred if shape is None else fit_width(preferred, *shape)
+
+
+def _tile_shape(pattern):
+    """The tile's (aspect, counts, fewest texels, kinds) for its generator at its default
+    parameters; None for what is neither a draft nor a knit (only its counts are known)."""
+    from ..patterns.draft import Draft
+    from ..patterns.knit import KnitPattern
+
+    if isinstance(pattern, Draft):
+        from .woven import tile_shape
+    elif isinstance(pattern, KnitPattern):
+        from .knit import tile_shape
+    else:
+        return None
+    return tile_shape(pattern)
 
 
 def _resolution_key(resolution):

@@ -67,9 +67,10 @@ import numpy as np
 from ..errors import ParameterError, PatternError
 from ..patterns.knit import KnitPattern, validate_stitches
 from .cloth_maps import ClothMaps
-from .generator_support import height_normal, real_in, srgb_to_linear, tile_resolution
+from .generator_support import check_memory, height_normal, real_in, srgb_to_linear, tile_resolution
 
 MIN_TEXELS_PER_STITCH = 4
+DEFAULT_LOOP_ASPECT = 0.8  # knit_maps' loop_aspect: course spacing / wale spacing
 _TABLE_X = 128          # initial-guess table: nodes per stitch period along u
 _TABLE_SAMPLES = 192    # curve samples per stitch period when building the table
 _NEWTON_STEPS = 3
@@ -88,6 +89,15 @@ def _as_pattern(pattern: Any) -> KnitPattern:
                            f"string {pattern!r} (use mscloth.patterns.knit.{pattern}() or "
                            f"similar)")
     return KnitPattern(validate_stitches(pattern))
+
+
+def tile_shape(pattern: Any, loop_aspect: float = DEFAULT_LOOP_ASPECT
+               ) -> tuple[float, tuple[int, int], int, tuple[str, str]]:
+    """The arguments of :func:`~.generator_support.tile_resolution` after ``resolution`` for
+    a knit's tile: its aspect (height / width), its (courses, wales), the fewest texels per
+    stitch and the stitches' names."""
+    nc, nw = _as_pattern(pattern).stitches.shape
+    return nc * loop_aspect / nw, (nc, nw), MIN_TEXELS_PER_STITCH, ("courses", "wales")
 
 
 # ---------------------------------------------------------------- the course curve
@@ -181,7 +191,7 @@ def _depth(tl, sig, sig_above, sig_left, sig_right, d, off=0.0, off_left=0.0, of
 
 # ---------------------------------------------------------------- the generator
 def knit_maps(pattern: Any, resolution: int | tuple[int, int] = 256, *,
-              yarn_width: float = 0.45, loop_aspect: float = 0.8, loop_height: float = 1.5,
+              yarn_width: float = 0.45, loop_aspect: float = DEFAULT_LOOP_ASPECT, loop_height: float = 1.5,
               leg_tilt_deg: float = 25.0, yarn_height: float | None = None,
               fibre_twist_deg: float = 30.0, wale_spacing_mm: float = 1.0,
               rib_depth: float = 1.0) -> ClothMaps:
@@ -227,8 +237,10 @@ def knit_maps(pattern: Any, resolution: int | tuple[int, int] = 256, *,
     twist = real_in("fibre_twist_deg", fibre_twist_deg, -90.0, 90.0, False, False)
     mm = real_in("wale_spacing_mm", wale_spacing_mm, 0.0, math.inf, True, True)
     rib = real_in("rib_depth", rib_depth, 0.0, 4.0, False, False)
-    aspect = nc * a / nw
-    H, W = tile_resolution(resolution, aspect, (nc, nw), MIN_TEXELS_PER_STITCH, ("courses", "wales"))
+    shape = tile_shape(pat, a)
+    aspect = shape[0]
+    H, W = tile_resolution(resolution, *shape)
+    check_memory((H, W), *shape[:3])
     psi = math.radians(twist)
 
     r = 0.5 * w

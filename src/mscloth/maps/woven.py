@@ -30,6 +30,7 @@ Everything is a periodic function of (u, v) sampled at texel centres, so the til
 from __future__ import annotations
 
 import math
+import warnings
 from numbers import Integral
 from typing import Any
 
@@ -39,9 +40,12 @@ from ..errors import ParameterError
 from ..patterns.draft import Draft
 from ..patterns.weaves import validate_drawdown
 from .cloth_maps import ClothMaps
-from .generator_support import height_normal, real_in, srgb_to_linear, tile_resolution
+from .generator_support import (MapsWarning, check_memory, height_normal, real_in, srgb_to_linear,
+                                tile_resolution, width_range)
 
 MIN_TEXELS_PER_THREAD = 2
+#: How far the gap fraction of the maps may be from the one asked for before a warning.
+GAP_TOLERANCE = 0.05
 
 
 def _colors(name: str, colors: Any, count: int) -> np.ndarray:
@@ -93,11 +97,56 @@ def _as_draft(pattern: Any) -> Draft:
     return pattern if isinstance(pattern, Draft) else Draft(validate_drawdown(pattern))
 
 
-def _tile_resolution(resolution: Any, draft: Draft) -> tuple[int, int]:
-    """An int is the width in texels (the height follows the tile's aspect); (H, W) is exact."""
+def tile_shape(pattern: Any) -> tuple[float, tuple[int, int], int, tuple[str, str]]:
+    """The arguments of :func:`~.generator_support.tile_resolution` after ``resolution`` for
+    a draft's tile: its aspect (height / width), its (picks, ends), the fewest texels per
+    thread and the threads' names."""
+    draft = _as_draft(pattern)
     width_mm, height_mm = draft.size_mm
-    return tile_resolution(resolution, height_mm / width_mm, (draft.n_weft, draft.n_warp),
-                           MIN_TEXELS_PER_THREAD, ("weft picks", "warp ends"))
+    return (height_mm / width_mm, (draft.n_weft, draft.n_warp), MIN_TEXELS_PER_THREAD,
+            ("weft picks", "warp ends"))
+
+
+def _thin_yarn_warning(W: int, H: int, width_mm: float, height_mm: float, warp_width, weft_width,
+                       achieved: float, requested: float | None, shape) -> None:
+    """Warn (MapsWarning) of maps that will not show the cloth asked for: a yarn narrower
+    than one texel (sampled at texel centres it is hit or missed, so the cloth is mostly
+    holes, or invisible) or a gap fraction more than GAP_TOLERANCE off the requested one,
+    naming the resolution that resolves the yarn."""
+    # Yarn widths in texels; a slubby yarn's mean width is its diameter.
+    warp_texels = float(np.min(warp_width)) * W / width_mm
+    weft_texels = float(np.min(weft_width)) * H / height_mm
+    thin = min(warp_texels, weft_texels) < 1.0
+    off = requested is not None and abs(achieved - requested) > GAP_TOLERANCE
+    if not (thin or off):
+        return
+    family, texels = ("warp", warp_texels) if warp_texels <= weft_texels else ("weft", weft_texels)
+    aspect, counts, least, _ = shape
+    # Two texels across the narrowest yarn, and for a gap that is off, a texel grid fine
+    # enough for the sampling error (at most a texel per thread edge, so ~1/resolution) to
+    # fall to half the tolerance.
+    wanted = 2.0 * W / min(warp_texels, weft_texels)
+    if off:
+        wanted = max(wanted, W * abs(achieved - requested) / (0.5 * GAP_TOLERANCE))
+    low, high = width_range(aspect, counts, least)
+    wanted = max(low, math.ceil(wanted))
+    what = (f"the {family} yarn is {texels:.2g} texels wide" if thin else
+            f"the narrowest yarn is {min(warp_texels, weft_texels):.2g} texels wide")
+    gap = f"gap fraction {achieved:.3f}"
+    if requested is not None and gap != f"gap fraction {requested:.3f}":
+        gap += f" instead of the requested {requested:.3f}"
+    fix = (f"{{res}} {wanted}{{along}} or more resolves it" if wanted <= high else
+           f"no {{res}} up to {high} resolves it; a wider yarn does")
+    warnings.warn(MapsWarning(f"woven maps of {W}x{H} texels: {what} ({gap}): {fix}"), stacklevel=3)
+
+
+def _tile_resolution(resolution: Any, draft: Draft) -> tuple[int, int]:
+    """An int is the width in texels (the height follows the tile's aspect); (H, W) is exact.
+    ResolutionError also where the tile would not fit in memory."""
+    shape = tile_shape(draft)
+    pair = tile_resolution(resolution, *shape)
+    check_memory(pair, *shape[:3])
+    return pair
 
 
 def _threads(centres_of: np.ndarray, spacing: np.ndarray, pos: np.ndarray):
@@ -469,6 +518,8 @@ def woven_maps(pattern: Any, resolution: int | tuple[int, int] = (128, 128), *,
         "warp_colors": np.asarray(warp_rgb).tolist(),
         "weft_colors": np.asarray(weft_rgb).tolist(),
     }
+    _thin_yarn_warning(W, H, width_mm, height_mm, warp_width, weft_width, 1.0 - float(yarn.mean()),
+                       None if gap_fraction is None else float(gap_fraction), tile_shape(draft))
     # What the draft's reader had to guess or found odd (a WIF file's warnings), so that
     # maps.json keeps it: "<file>: <message>", as the reader warned.
     draft_warnings = draft.meta.get("warnings") if isinstance(draft.meta, dict) else None

@@ -42,10 +42,14 @@ also kept in ``Draft.meta["warnings"]`` (without the file name) and in the maps'
 * ``Units`` missing while a spacing/thickness is given: decipoints are assumed.
   ``Spacing`` missing: 0.5 mm (``DEFAULT_SPACING_MM``). ``Shafts``/``Treadles`` missing:
   the highest one used. ``Range`` missing from COLOR PALETTE: ``0,255`` is assumed.
+* Threads a WARP COLORS / WEFT COLORS section leaves out take the ``[WARP]``/``[WEFT]``
+  ``Color=``, else white (with a warning). Colours are read in the palette's ``Range`` as
+  given, even where ``Range=0,65535`` holds only 8-bit values (with a warning).
 """
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 import os
 import re
@@ -89,14 +93,20 @@ _CHECKED_SECTIONS = (
     "WARP SPACING", "WEFT SPACING", "WARP THICKNESS", "WEFT THICKNESS",
 )
 
-#: Sanity limits: far beyond any loom (jacquards have a few thousand hooks), small enough that
-#: a garbage count cannot make the drawdown allocate gigabytes.
-MAX_THREADS = 16384
+#: Sanity limits: beyond any loom (jacquards have a few thousand hooks), small enough that a
+#: garbage count cannot make the drawdown allocate gigabytes. MAX_THREADS is the most ends or
+#: picks that can still become maps: those need at least ``maps.woven.MIN_TEXELS_PER_THREAD``
+#: (2) texels per thread in a tile of at most 8192 texels a side
+#: (``maps.generator_support.MAX_RESOLUTION``), so 8192 // 2. (The value is
+#: written out, not imported: patterns must not depend on maps; tests/test_wif.py checks the
+#: relation.)
+MAX_THREADS = 4096
 MAX_SHAFTS = 4096
 
 _INT_RE = re.compile(r"[+]?\d+\Z")
 _NUM_RE = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?\Z")
 _DECIMAL_COMMA_RE = re.compile(r"[+-]?\d+,\d+\Z")
+_INT_LIST_RE = re.compile(r"[ \t]*\+?[0-9]+[ \t]*(?:,[ \t]*\+?[0-9]+[ \t]*)*\Z")
 
 
 def _norm(name: str) -> str:
@@ -234,6 +244,10 @@ class _Wif:
         """Comma-separated non-negative integers; empty -> [] (see empty_ok)."""
         if self.empty_ok(section, entry, f"{what} numbers"):
             return []
+        # Jacquard liftplans hold millions of numbers: check a well-formed line with one regex
+        # (a strict subset of what the loop below accepts) and leave errors to the loop.
+        if _INT_LIST_RE.match(entry.value):
+            return list(map(int, entry.value.split(",")))
         out = []
         for item in entry.value.split(","):
             item = item.strip()
@@ -290,26 +304,34 @@ def read_wif(path) -> Draft:
     return parse_wif(data, name=p.name)
 
 
-def _numbering(wif, uses, count, kind: str, key: str, default_section: str) -> tuple[int, int]:
-    """(base, count) of one numbering (shafts or treadles) from its ``uses``, a list of
-    (section, entry, number). Numbering starts at 0 if any use is 0, else at 1; a missing
-    [WEAVING] count is inferred from the largest number used (with a warning); a number
-    beyond the count is an error at its line."""
-    zero = next(((sec, e) for sec, e, n in uses if n == 0), None)
+def _numbering(wif, uses: list[_Uses], count, kind: str, key: str, default_section: str) -> tuple[int, int]:
+    """(base, count) of one numbering (shafts or treadles) from its ``uses``, in file-reading
+    order. Numbering starts at 0 if any use is 0, else at 1; a missing [WEAVING] count is
+    inferred from the largest number used (with a warning); a number beyond the count is an
+    error at its line (the first such use, as ``uses`` are ordered)."""
+    zero = next(((u.section, u.entry(k)) for u in uses for k in np.flatnonzero(u.numbers == 0)[:1]), None)
     base = 0 if zero is not None else 1
     note = (f"; {kind}s are numbered from 0 here because [{zero[0]}] line "
             f"{zero[1].line} uses {kind} 0" if zero is not None else "")
     if count is None:
-        sec, e, top = max(uses, key=lambda u: u[2], default=(default_section, None, base))
-        count = top - base + 1
+        sec, e, top = default_section, None, base
+        used = [u for u in uses if u.numbers.size]
+        if used:
+            top = max(u.numbers.max() for u in used)
+            u = next(u for u in used if u.numbers.max() == top)          # the first use of it
+            sec, e = u.section, u.entry(np.flatnonzero(u.numbers == top)[0])
+        count = int(top) - base + 1
         if e is not None:
             _capped(wif, sec, e, count, MAX_SHAFTS, f"{kind}s")
         where = f" ([{sec}] line {e.line})" if e is not None else ""
         wif.warnings.append(f"[WEAVING] has no {key}=; {key}={count} inferred from the highest "
                             f"{kind} used{where}: give {key}=")
-    for sec, e, n in uses:
-        if n - base >= count:
-            raise wif.error(sec, e.line, f"{kind} {n} does not exist ({key}={count}{note})")
+    for u in uses:
+        beyond = np.flatnonzero(u.numbers - base >= count)
+        if beyond.size:
+            n = u.numbers[beyond[0]]
+            raise wif.error(u.section, u.entry(beyond[0]).line,
+                            f"{kind} {n} does not exist ({key}={count}{note})")
     return base, count
 
 
@@ -548,39 +570,38 @@ def _build(wif: _Wif, name: str) -> Draft:
                       "nothing is lifted, so {they} over every warp end across the whole tile")
 
     # --- shaft numbering: one namespace across threading, tieup and liftplan ----------------
-    shaft_uses: list[tuple[str, _Entry, int]] = []
-    shaft_uses += [("THREADING", threading.items[i], s) for i, ss in thr_shafts.items() for s in ss]
+    thr_uses = _Uses.of("THREADING", thr_shafts, threading.items)
     if lift_source == "liftplan":
-        shaft_uses += [("LIFTPLAN", picks.items[i], s) for i, ss in pick_values.items() for s in ss]
+        lift_uses = _Uses.of("LIFTPLAN", pick_values, picks.items)
     else:
-        shaft_uses += [("TIEUP", tieup_num[t], s) for t, ss in tieup_items.items() for s in ss]
-    shaft_base, n_shafts = _numbering(wif, shaft_uses, n_shafts, "shaft", "Shafts", "THREADING")
+        lift_uses = _Uses.of("TIEUP", tieup_items, tieup_num)
+    shaft_base, n_shafts = _numbering(wif, [thr_uses, lift_uses], n_shafts, "shaft", "Shafts", "THREADING")
 
     # --- treadle numbering (TIEUP keys, TREADLING values) ------------------------------------
     if lift_source == "treadling":
-        tread_uses = [("TIEUP", tieup_num[t], t) for t in tieup_items]
-        tread_uses += [("TREADLING", picks.items[i], t) for i, ts in pick_values.items() for t in ts]
-        tread_base, n_treadles = _numbering(wif, tread_uses, n_treadles or None, "treadle", "Treadles", "TIEUP")
+        tieup_keys = _Uses.of("TIEUP", {t: [t] for t in tieup_num}, tieup_num)
+        tread_uses = _Uses.of("TREADLING", pick_values, picks.items)
+        tread_base, n_treadles = _numbering(wif, [tieup_keys, tread_uses], n_treadles or None,
+                                            "treadle", "Treadles", "TIEUP")
 
     # --- drawdown: boolean matrix products --------------------------------------------------
     thread_m = np.zeros((n_warp, n_shafts), dtype=bool)          # end -> shafts
-    _scatter(thread_m, thr_shafts, shaft_base)
+    thr_uses.scatter(thread_m, shaft_base)
     if lift_source == "liftplan":
         selected = np.zeros((n_weft, n_shafts), dtype=bool)       # pick -> shafts
-        _scatter(selected, pick_values, shaft_base)
+        lift_uses.scatter(selected, shaft_base)
     else:
         tieup_m = np.zeros((n_treadles, n_shafts), dtype=bool)    # treadle -> shafts
-        _scatter(tieup_m, {t - tread_base: ss for t, ss in tieup_items.items()}, shaft_base)
+        lift_uses.scatter(tieup_m, shaft_base, row_base=tread_base)
         tread_m = np.zeros((n_weft, n_treadles), dtype=bool)      # pick -> treadles
-        _scatter(tread_m, pick_values, tread_base)
-        # int64 products: several treadles may tie the same shaft; counts must not wrap.
-        selected = (tread_m.astype(np.int64) @ tieup_m.astype(np.int64)) > 0
+        tread_uses.scatter(tread_m, tread_base)
+        selected = _any_product(tread_m, tieup_m)
     # Sinking shed: the tieup/liftplan names the shafts pulled down; the rest are up.
     raised = selected if rising else ~selected
     listed = np.zeros(n_weft, dtype=bool)
     listed[list(picks.items)] = True
     raised &= listed[:, None]                                     # absent picks lift nothing
-    drawdown = (raised.astype(np.int64) @ thread_m.T.astype(np.int64)) > 0
+    drawdown = _any_product(raised, thread_m.T)
     interlacing = _interlacing_warning(drawdown, thread_m.any(axis=1), lift_source)
     if interlacing is not None:
         wif.warnings.append(interlacing)
@@ -629,12 +650,50 @@ def _build(wif: _Wif, name: str) -> Draft:
         raise PatternError(f"{fname}: {exc}") from None
 
 
-def _scatter(matrix: np.ndarray, rows: dict[int, list[int]], base: int) -> None:
-    """Set ``matrix[row, col - base] = True`` for every listed (row, col): one fancy-index write."""
-    pairs = [(r, c - base) for r, cols in rows.items() for c in cols]
-    if pairs:
-        r, c = np.array(pairs, dtype=np.int64).T
-        matrix[r, c] = True
+def _any_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Boolean matrix product: ``out[i, j] = any(a[i, :] & b[:, j])``.
+
+    NumPy multiplies integer matrices without BLAS (~15 s for a 2048-end, 1024-shaft draft);
+    float32 goes through BLAS and is exact here: every partial sum is a count of 0/1 products,
+    at most the number of shafts or treadles (<= MAX_SHAFTS = 4096) < 2**24, which float32
+    represents exactly, whatever the summation order.
+    """
+    return (a.astype(np.float32) @ b.astype(np.float32)) > 0
+
+
+@dataclass
+class _Uses:
+    """The numbers one section uses (shafts, treadles), flattened so that checks and the
+    matrix writes are array operations (a jacquard liftplan holds millions of them):
+    ``numbers[k]`` is in row ``keys[owner[k]]``, written on line ``entries[owner[k]]``."""
+    section: str
+    keys: list[int]                 # row (thread or treadle) of each entry
+    entries: list[_Entry]
+    numbers: np.ndarray             # int64, or object where a number overflows int64
+    owner: np.ndarray               # index into keys / entries of each number
+
+    @classmethod
+    def of(cls, section: str, values: dict[int, list[int]], entries: dict[int, _Entry]) -> "_Uses":
+        keys = list(values)
+        counts = np.fromiter(map(len, values.values()), dtype=np.int64, count=len(keys))
+        flat = itertools.chain.from_iterable(values.values())
+        try:
+            numbers = np.fromiter(flat, dtype=np.int64, count=int(counts.sum()))
+        except OverflowError:       # "shaft 99999999999999999999": still reported as written
+            numbers = np.array(list(itertools.chain.from_iterable(values.values())), dtype=object)
+        owner = np.repeat(np.arange(len(keys)), counts)
+        return cls(section, keys, [entries[k] for k in keys], numbers, owner)
+
+    def entry(self, k) -> _Entry:
+        """The entry (line) that number ``k`` was written on."""
+        return self.entries[self.owner[k]]
+
+    def scatter(self, matrix: np.ndarray, base: int, row_base: int = 0) -> None:
+        """Set ``matrix[row - row_base, number - base] = True`` for every use, in one write.
+        Only once the numbers have been checked against the matrix (see _numbering)."""
+        if self.numbers.size:
+            rows = np.asarray(self.keys, dtype=np.int64)[self.owner] - row_base
+            matrix[rows, self.numbers.astype(np.int64) - base] = True
 
 
 def _color_table(wif: _Wif) -> tuple[dict[int, np.ndarray], tuple[float, float]]:
@@ -654,11 +713,19 @@ def _color_table(wif: _Wif) -> tuple[dict[int, np.ndarray], tuple[float, float]]
     elif wif.section("COLOR TABLE") is not None:
         wif.warnings.append("no [COLOR PALETTE] Range: 0,255 assumed")
     table: dict[int, np.ndarray] = {}
+    top = 0.0                       # the largest component as written
     sec = wif.section("COLOR TABLE")
     if sec is not None:
         for e in sec.entries.values():
             idx = wif.key_number("COLOR TABLE", e, "colour")
             table[idx] = _rgb(wif, "COLOR TABLE", e, e.value, (lo, hi))
+            top = max(top, *(float(v) for v in e.value.split(",")))
+    # 8-bit values under a 16-bit Range: valid, but every colour comes out below 0.4 %
+    # (nearly black), which is what a writer that mislabels its Range produces. The values
+    # are read as the file says; the warning lets the user see why.
+    if hi > 255 and 0 < top <= 255:
+        wif.warnings.append(f"[COLOR PALETTE] Range={lo:g},{hi:g} but every colour is <= 255: the cloth "
+                            f"will be nearly black; was Range={lo:g},255 meant?")
     return table, (lo, hi)
 
 
@@ -692,7 +759,8 @@ def _thread_colors(wif: _Wif, side: str, count: int, explicit: bool,
 
     default = None
     e = wif.get(side, "COLOR")
-    if e is not None and e.value:
+    has_default = e is not None and bool(e.value)
+    if has_default:
         parts = [p.strip() for p in e.value.split(",")]
         if len(parts) == 1:
             index = wif.int_value(side, e, "a colour index", lo=0)
@@ -711,10 +779,20 @@ def _thread_colors(wif: _Wif, side: str, count: int, explicit: bool,
     colors = np.tile(np.ones(3) if default is None else default, (count, 1))
     _limit_threads(wif, num, count, explicit, side)
     if num is not None:
+        given = np.zeros(count, dtype=bool)
         for i, e in num.items.items():
             if wif.empty_ok(section, e, "a colour index"):
                 continue
             colors[i] = lookup(section, e, wif.int_value(section, e, "a colour index", lo=0))
+            given[i] = True
+        # Without a [SIDE] Color= the others' white is a guess (a writer that lists only some
+        # threads, or a cut-off list); with one (even one without a [COLOR TABLE], which has
+        # its own warning) the others take it, as the file says.
+        if not has_default and not given.all():
+            kind, short = ("warp end", "end") if side == "WARP" else ("weft pick", "pick")
+            first = int(np.argmin(given)) + num.base
+            wif.warnings.append(f"[{section}] gives no colour for {int(count - given.sum())} of {count} "
+                                f"{kind}s (first: {short} {first}); white used")
     return colors
 
 

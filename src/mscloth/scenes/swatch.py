@@ -78,7 +78,7 @@ def swatch_scene(width: int = 480, height: int = 360, fabric: str = "silk-charme
 
     T = mi.ScalarTransform4f
 
-    preset(fabric)  # an unknown name fails here, naming the closest presets
+    structure = preset(fabric).structure  # an unknown name fails here, naming the closest presets
     if view not in VIEWS:
         raise ClothError(f"unknown swatch view {view!r}: expected one of {', '.join(VIEWS)}")
     if light not in LIGHTS:
@@ -104,10 +104,11 @@ def swatch_scene(width: int = 480, height: int = 360, fabric: str = "silk-charme
         # (Smaller than the ball the drape was shaped on: beyond its cap the sheet is pulled in.)
         "form": {"type": "sphere", "center": [0.0, 1.25 * FORM_RADIUS, 0.0], "radius": 0.72 * FORM_RADIUS,
                  "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.55, 0.5, 0.45]}}},
-        # Turned so the warp runs left to right: the key above the camera then lights the
-        # warp floats' lustre band along the folds.
+        # A weave turned so the warp runs left to right: the key above the camera then lights
+        # the warp floats' lustre band along the folds. A knit's wales stay upright, as a
+        # garment's: its ribs and columns of loops run up the picture.
         "cloth": {"type": "ply", "filename": ply, "face_normals": False, "bsdf": bsdf,
-                  "to_world": T().rotate([0, 1, 0], 90.0)},
+                  "to_world": T().rotate([0, 1, 0], 90.0 if structure == "woven" else 0.0)},
     }
     scene.update(studio_lights() if light == "studio" else sunsky_lights())
     return scene
