@@ -2,6 +2,8 @@
 (mscloth's files only), and that loads mark entries as used."""
 import os
 import re
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -78,6 +80,63 @@ def test_listing_and_bad_arguments(cache_dir, capsys):
         assert main(bad) == 2
         assert "--older-than" in capsys.readouterr().err
     assert len(cache_entries(cache_dir)) == 5
+    # --dry-run without --clear is refused as --older-than is (it was silently ignored)
+    assert main(["cache", "--dry-run"]) == 2
+    assert "--dry-run only lists what --clear would remove: add --clear" in capsys.readouterr().err
+
+
+def test_one_entry_is_singular(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("MSCLOTH_CACHE", str(tmp_path))
+    _write(tmp_path / f"tables-{KEY}.npz", 100)
+    assert main(["cache"]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"tables\s+1 entry\s+0\.1 KiB", out) and "entries" not in out, out
+    assert main(["cache", "--clear", "--dry-run"]) == 0
+    assert "would remove 1 entry (" in capsys.readouterr().out
+    assert main(["cache", "--clear"]) == 0
+    assert "removed 1 entry (" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("below", ["", "sub"])
+def test_a_cache_that_is_a_file_is_one_line(tmp_path, monkeypatch, capsys, below):
+    """MSCLOTH_CACHE naming a file (or a path under one): `cache` said "(not created yet)"
+    and `render` failed with a raw "[Errno 20] Not a directory"."""
+    from mscloth.cache import default_cache_dir
+    from mscloth.errors import ClothError
+
+    blocker = tmp_path / "cache"
+    blocker.write_text("not a folder")
+    monkeypatch.setenv("MSCLOTH_CACHE", str(blocker / below) if below else str(blocker))
+    with pytest.raises(ClothError, match="MSCLOTH_CACHE=.* not a folder"):
+        default_cache_dir()
+    for command in (["cache"], ["cache", "--list"], ["render", "plane", "--spp", "1", "--res", "8x8",
+                                                     "--out", str(tmp_path / "p.exr")]):
+        if command[0] == "render":  # a fresh process: this one may hold the plane's tables in memory
+            result = subprocess.run([sys.executable, "-m", "mscloth", *command], capture_output=True, text=True,
+                                    timeout=300)
+            code, err = result.returncode, result.stderr
+        else:
+            code, err = main(command), capsys.readouterr().err
+        assert code == 2
+        lines = [line for line in err.splitlines() if line.strip()]
+        assert len(lines) == 1 and f"MSCLOTH_CACHE={blocker}" in lines[0] and "a file, not a folder" in lines[0], err
+    assert blocker.read_text() == "not a folder" and not (tmp_path / "p.exr").exists()
+
+
+def test_a_reader_that_stops_early_ends_the_listing_quietly(tmp_path):
+    """`mscloth cache --list | head -3`: the reader closes the pipe; mscloth stops without an
+    error, with 141 (128 + SIGPIPE) as ls does. Both a write that fails mid-listing (more
+    than the pipe's buffer) and one that fails at the final flush."""
+    many = tmp_path / "many"
+    for i in range(400):
+        _write(many / f"tables-{i:064x}.npz", 10)
+    for root in (many, tmp_path / "empty"):
+        child = subprocess.Popen([sys.executable, "-m", "mscloth", "cache", "--list"], stdout=subprocess.PIPE,
+                                 stderr=subprocess.PIPE, env={**os.environ, "MSCLOTH_CACHE": str(root)})
+        child.stdout.close()  # before mscloth writes anything
+        err = child.stderr.read().decode()
+        assert child.wait(timeout=120) == 141, err
+        assert err == "", err
 
 
 def test_remove_entries_skips_files_already_gone(cache_dir):

@@ -550,6 +550,9 @@ def test_compare_without_the_evaluation_extra_says_what_to_install(monkeypatch, 
     (["sphere", "--out", "{file}/sub"], "cannot write to"),
     (["sphere", "--json", "{dir}"], "is a directory"),
     (["sphere", "--json", "{file}"], "a_file exists; pass --force to overwrite"),
+    (["x.xml"], "compare takes a built-in scene name (swatch, plane"),
+    (["x.xml"], "an XML scene cannot be compared yet"),
+    (["sphere", "--variant", "scalar_rgb"], "compare needs a JIT variant"),  # not mi.ShapePtr's AttributeError
 ])
 def test_bad_input_gives_one_line_and_nonzero_exit(args, message, tmp_path):
     blocker = tmp_path / "a_file"
@@ -574,6 +577,18 @@ def test_convergence_curve_records_the_count_the_sampler_took(capfd):
                                        quiet=True, repeats=2)
     assert [p["spp"] for p in points] == [1, 2, 4, 8, 16, 35]
     assert "rounded" not in capfd.readouterr().err
+
+
+def test_reference_halves_render_the_count_the_sampler_takes_without_its_warning(tmp_path, monkeypatch, capfd):
+    """A reference of 256 spp under multijitter: each half at the 132 samples the sampler
+    takes for 128, said once, and Mitsuba's rounding warning not printed per pass (it was,
+    in red, and the count printed was the one asked for)."""
+    monkeypatch.setenv("MSCLOTH_CACHE", str(tmp_path / "cache"))
+    image, variance, cached = reference_image("sphere", 8, 6, 256)
+    out, err = capfd.readouterr()
+    assert not cached and np.all(np.isfinite(image)) and np.all(variance >= 0)
+    assert "takes 132 samples per pixel for each half, not 128 (264 in all)" in out
+    assert "(132 spp)" in out + err and "rounded" not in err + out
 
 
 def test_builtin_scenes_sample_pixels_with_a_stratified_sampler_that_can_be_changed():

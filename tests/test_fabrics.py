@@ -93,6 +93,17 @@ def test_unknown_fabric_names_the_closest():
         load_dict({"type": "cloth", "fabric": "silk-charmeus"})
 
 
+def test_unknown_fabric_suggests_the_presets_that_hold_the_word():
+    """`--fabric silk` named none: its three presets are too far by spelling alone."""
+    from mscloth.fabrics import fabric
+
+    with pytest.raises(ParameterError, match=r"unknown fabric 'silk' \(did you mean 'silk-charmeuse', "
+                                             r"'silk-shantung' or 'silk-organza'\?\)"):
+        fabric("silk")
+    with pytest.raises(ParameterError, match=r"\(did you mean 'wool-gabardine' or 'wool-rib'\?\)"):
+        fabric("wool")
+
+
 def test_uv_unit_and_uv_scale_are_exclusive():
     from mscloth.loading import load_dict
 
@@ -186,6 +197,17 @@ def test_swatch_views_and_lights(view, light, tmp_path):
     scene = load_dict(swatch_scene(24, 18, "silk-charmeuse", view, light, mesh_dir=tmp_path))
     image = np.array(mi.render(scene, spp=2, seed=1))
     assert np.all(np.isfinite(image)) and image.mean() > 0.0
+
+
+def test_swatch_sunsky_is_exposed_as_the_studio_rig(tmp_path):
+    """The two rigs light the arm's-length view alike (means within a factor 1.5): the
+    sunsky's scale was once ~30x too dark for Mitsuba's sunsky, an almost black picture."""
+    from mscloth.loading import load_dict
+    from mscloth.scenes.swatch import swatch_scene
+
+    means = [np.array(mi.render(load_dict(swatch_scene(32, 24, "denim", "arm", light, mesh_dir=tmp_path)),
+                                spp=4, seed=1))[..., :3].mean() for light in ("studio", "sunsky")]
+    assert 1 / 1.5 < means[1] / means[0] < 1.5, means
 
 
 def test_fabric_file_starts_from_a_base_and_resolves_beside_the_scene(tmp_path, monkeypatch):

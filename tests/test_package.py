@@ -166,6 +166,27 @@ def test_cli_refuses_a_variant_whose_backend_does_not_start(tmp_path, capsys, mo
     assert not tmp_path.exists() or not any(tmp_path.iterdir())
 
 
+@pytest.mark.parametrize("name", ["llvm_ad_mono", "scalar_spectral", "llvm_ad_spectral_polarized",
+                                  "llvm_ad_mono_polarized"])
+def test_cli_refuses_a_variant_that_is_not_rgb(tmp_path, capsys, name):
+    """mscloth's BSDF is RGB: other variants are refused before they are made active (they
+    failed with a Dr.Jit traceback, or a misleading energy error)."""
+    from mscloth.cli import build_parser, main
+
+    out = tmp_path / "x.exr"
+    try:
+        assert main(["render", "plane", "--variant", name, "--out", str(out)]) == 2
+        line = _one_error_line(capsys.readouterr().err)
+        assert "mscloth renders RGB variants only: scalar_rgb, llvm_ad_rgb" in line and repr(name) in line
+        assert mi.variant() == "llvm_ad_rgb" and not out.exists()
+        with pytest.raises(mscloth.ClothError, match="RGB variants only"):
+            mscloth.setup_mitsuba(name)
+    finally:  # (where it was made active, the later tests would run in it)
+        mi.set_variant("llvm_ad_rgb")
+    help_text = " ".join(build_parser()._subparsers._group_actions[0].choices["render"].format_help().split())
+    assert "an RGB Mitsuba variant" in help_text
+
+
 def test_cli_demo_renders_finite_cloth_and_twice_replaces_its_own_images(tmp_path, capsys):
     """`make demo`: the demo scene renders finite, lit cloth, says where it wrote and how
     long it took; run twice, its --out is its own folder, replaced without --force."""

@@ -85,6 +85,60 @@ def test_scene_command_writes_xml_and_meshes_then_refuses_to_overwrite(tmp_path)
     assert rendered.returncode == 0, rendered.stderr
 
 
+def test_exported_scene_folder_can_be_moved(tmp_path, monkeypatch):
+    """Meshes and cloth maps directories are written relative to the XML: the exported
+    folder loads from where it was moved to, from another working directory (the maps were
+    named by absolute path: "maps directory '.../x/maps/denim_maps-...' does not exist")."""
+    from mscloth.loading import load_file
+
+    out = tmp_path / "x" / "denim.xml"
+    result = run("scene", "denim", "--out", str(out), "--res", "16x9")
+    assert result.returncode == 0, result.stderr
+    assert 'name="pattern" value="maps/denim_maps-' in out.read_text()
+    moved = tmp_path / "moved"
+    (tmp_path / "x").rename(moved)
+    monkeypatch.chdir(tmp_path)
+    scene = load_file(str(moved / "denim.xml"))
+    assert tuple(scene.sensors()[0].film().size()) == (16, 9)
+
+
+def test_exported_fabric_file_is_named_relative_to_the_xml(tmp_path, monkeypatch):
+    """`scene swatch --fabric black.json --out fb/sub/a.xml` wrote "black.json", relative to
+    the working directory, which the BSDF does not look in: the XML names it from its folder
+    and loads from anywhere."""
+    import json
+
+    from mscloth.cli import main
+    from mscloth.loading import load_file
+
+    (tmp_path / "black.json").write_text(json.dumps({"base": "denim", "warp_color": [0.05, 0.05, 0.05]}))
+    monkeypatch.chdir(tmp_path)
+    assert main(["scene", "swatch", "--fabric", "black.json", "--out", "fb/sub/a.xml", "--res", "16x12"]) == 0
+    xml = tmp_path / "fb" / "sub" / "a.xml"
+    assert 'name="fabric" value="../../black.json"' in xml.read_text()
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    assert tuple(load_file(str(xml)).sensors()[0].film().size()) == (16, 12)
+
+
+def test_scene_exports_the_resolution_render_renders(tmp_path, capsys):
+    """`scene swatch` wrote 512x288 while `render swatch` renders 480x360: the fov is
+    horizontal, so the framing differed. Both take the scene builder's own default."""
+    import inspect
+
+    from mscloth.cli import main
+    from mscloth.scenes.swatch import swatch_scene
+
+    out = tmp_path / "s.xml"
+    assert main(["scene", "swatch", "--out", str(out)]) == 0
+    text = out.read_text()
+    defaults = inspect.signature(swatch_scene).parameters
+    for key in ("width", "height"):
+        assert f'<integer name="{key}" value="{defaults[key].default}"/>' in text
+    assert (defaults["width"].default, defaults["height"].default) == (480, 360)
+
+
 def _cloths(scene):
     return [node["bsdf"] for node in scene.values() if isinstance(node, dict) and node.get("bsdf", {}).get("type") == "cloth"]
 
@@ -140,8 +194,8 @@ def test_shiny_scene_renders_finite_and_writes_as_xml_with_its_maps(name, tmp_pa
     assert result.returncode == 0, result.stderr
     patterns = {bsdf["pattern"] for bsdf in _cloths(SCENES[name](32, 18, maps_dir=tmp_path / "maps"))}
     text = out.read_text()
-    for pattern in patterns:
-        assert Path(pattern).parent == (tmp_path / "maps").resolve() and f'value="{pattern}"' in text
+    for pattern in patterns:  # relative to the XML, as its meshes
+        assert Path(pattern).parent == (tmp_path / "maps").resolve() and f'value="maps/{Path(pattern).name}"' in text
     img = np.array(mi.render(mi.load_file(str(out)), spp=2, seed=1))
     assert img.shape == (18, 32, 3) and np.all(np.isfinite(img)) and img.mean() > 0.01
 
@@ -157,6 +211,10 @@ def test_shiny_scene_renders_finite_and_writes_as_xml_with_its_maps(name, tmp_pa
     (["maps", "jersey", "--plies", "3", "--out", "m"], "--plies does not apply to jersey"),
     (["maps", "plain", "--ply-twist", "30", "--out", "m"], "--ply-twist needs --plies 2 or more"),
     (["maps", "denim", "--fabric", "--twist", "20", "--out", "m"], "--twist does not apply to a fabric preset"),
+    # the flag given, not --fabric NAME
+    (["render", "plane", "--view", "close"], "--view applies to the swatch scene only (mscloth render swatch "
+                                             "--view close), not to 'plane'"),
+    (["scene", "plane", "--out", "p.xml", "--light", "sunsky"], "(mscloth scene swatch --light sunsky)"),
 ])
 def test_bad_input_is_one_clear_line(args, message, tmp_path):
     result = subprocess.run([sys.executable, "-m", "mscloth", *args], capture_output=True, text=True,

@@ -58,6 +58,13 @@ def register() -> None:
     register_integrators()
 
 
+def is_rgb_variant(variant: str) -> bool:
+    """Whether ``variant`` is one mscloth renders: RGB, not polarized (``scalar_rgb``,
+    ``llvm_ad_rgb``, ``cuda_ad_rgb``, ...)."""
+    parts = variant.split("_")
+    return "rgb" in parts and "polarized" not in parts
+
+
 def setup_mitsuba(variant: str | None = None) -> str:
     """Make ``variant`` active (default: the active one, else :func:`default_variant`),
     register mscloth's plugins for it and return it: the one set-up of the command line and
@@ -66,11 +73,19 @@ def setup_mitsuba(variant: str | None = None) -> str:
 
     from .variant import variant_unavailable
 
+    # The cloth BSDF's albedos, maps and tables are RGB: a mono or spectral variant fails
+    # deep in Dr.Jit, a polarized one's Stokes output is not what the energy checks expect.
+    rgb = [v for v in mi.variants() if is_rgb_variant(v)]
     if variant is None:
         variant = set_default_variant()
+        if not is_rgb_variant(variant):  # one the caller made active
+            raise ClothError(f"mscloth renders RGB variants only: {', '.join(rgb)}; the active variant "
+                             f"is {variant!r}")
     else:
+        if not is_rgb_variant(variant):
+            raise ClothError(f"mscloth renders RGB variants only: {', '.join(rgb)}; got {variant!r}")
         if variant not in mi.variants():
-            raise ClothError(f"unknown variant {variant!r}: expected one of {', '.join(mi.variants())}")
+            raise ClothError(f"unknown variant {variant!r}: expected one of {', '.join(rgb)}")
         why = variant_unavailable(variant)
         if why is not None:
             raise ClothError(f"variant {variant!r} cannot run here: {why}")

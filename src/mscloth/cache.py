@@ -27,9 +27,20 @@ __all__ = ["CacheEntry", "cache_entries", "default_cache_dir", "mark_used", "rem
 
 
 def default_cache_dir() -> Path:
-    """$MSCLOTH_CACHE, else ~/.cache/mscloth."""
+    """$MSCLOTH_CACHE, else ~/.cache/mscloth; a ClothError when it (or a folder above it) is
+    a file, said once here rather than as "[Errno 20] Not a directory" wherever it is used."""
+    from .errors import ClothError
+
     env = os.environ.get("MSCLOTH_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "mscloth"
+    root = Path(env) if env else Path.home() / ".cache" / "mscloth"
+    existing = root
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if existing.exists() and not existing.is_dir():
+        named = f"MSCLOTH_CACHE={env}" if env else f"the cache folder {root}"
+        what = "names a file" if existing == root else f"lies under {existing}, a file"
+        raise ClothError(f"{named} {what}, not a folder: point MSCLOTH_CACHE at a folder")
+    return root
 
 
 @lru_cache(maxsize=8)

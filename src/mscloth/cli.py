@@ -107,9 +107,21 @@ def _swatch_options(args, scene: str) -> dict:
     options = {name: value for name, value in (("fabric", args.fabric), ("view", args.view),
                                                  ("light", args.light)) if value is not None}
     if options and scene != "swatch":
-        raise ClothError(f"--{next(iter(options))} applies to the swatch scene only "
-                         f"(mscloth render swatch --fabric NAME), not to {scene!r}")
+        flag, value = next(iter(options.items()))
+        raise ClothError(f"--{flag} applies to the swatch scene only "
+                         f"(mscloth {args.command} swatch --{flag} {value}), not to {scene!r}")
     return options
+
+
+def _scene_resolution(name: str, res) -> tuple[int, int]:
+    """``--res``, else the built-in scene's own width and height (its builder's defaults):
+    ``render`` and ``scene`` frame it alike (the fov is horizontal)."""
+    from .scenes.builtin import SCENES
+
+    if res:
+        return res
+    parameters = inspect.signature(SCENES[name]).parameters
+    return parameters["width"].default, parameters["height"].default
 
 
 def load_scene_file(path: Path, res):
@@ -198,7 +210,7 @@ def cmd_render(args) -> int:
     # plugins on its own threads, and Dr.Jit's kernel history flag is per thread.
     loading_started = time.perf_counter()
     if args.scene in SCENES:
-        w, h = args.res or ((480, 360) if args.scene == "swatch" else (512, 288))
+        w, h = _scene_resolution(args.scene, args.res)
         scene_dict = builtin_scene(args.scene, w, h, **options)
         if args.sampler:
             set_pixel_sampler(scene_dict, args.sampler)
@@ -219,6 +231,26 @@ def cmd_render(args) -> int:
     return 0
 
 
+def _relative_to_xml(node, folder: Path) -> None:
+    """Rewrite the files a scene dictionary names relative to ``folder`` (the XML's): meshes,
+    ``cloth`` maps directories made in it, and ``.json`` fabric files (given relative to the
+    working directory, which loading the XML does not look in)."""
+    if not isinstance(node, dict):
+        return
+    if node.get("type") == "ply":
+        node["filename"] = os.path.relpath(Path(node["filename"]).resolve(), folder)
+    if node.get("type") == "cloth":
+        pattern = node.get("pattern")
+        if isinstance(pattern, (str, os.PathLike)) and Path(pattern).is_absolute() \
+                and Path(pattern).resolve().is_relative_to(folder):
+            node["pattern"] = os.path.relpath(Path(pattern).resolve(), folder)
+        fabric = node.get("fabric")
+        if isinstance(fabric, (str, os.PathLike)) and os.fspath(fabric).lower().endswith(".json"):
+            node["fabric"] = os.path.relpath(Path(fabric).resolve(), folder)
+    for value in node.values():
+        _relative_to_xml(value, folder)
+
+
 def cmd_scene(args) -> int:
     from .scenes.builtin import SCENES
     from .scenes.xml_export import scene_to_xml
@@ -232,18 +264,15 @@ def cmd_scene(args) -> int:
         raise ClothError(f"{out} exists; pass --force to overwrite")
     setup_mitsuba(args.variant)
     _writable_outputs(out)
-    w, h = args.res or (512, 288)
-    # Meshes and cloth maps next to the XML. Meshes are referenced relatively, so the folder
-    # can be moved; maps directories by absolute path, as scene_maps returns them (relative
-    # ones would resolve against the XML's directory too).
+    w, h = _scene_resolution(args.name, args.res)
+    # Meshes and cloth maps next to the XML, referenced relative to it (Mitsuba resolves a
+    # scene's paths against its file's folder first), so the folder can be moved.
+    folder = out.parent.resolve()
     accepted = inspect.signature(SCENES[args.name]).parameters
-    kwargs = {key: out.parent.resolve() / sub for key, sub in (("mesh_dir", "meshes"), ("maps_dir", "maps"))
-              if key in accepted}
+    kwargs = {key: folder / sub for key, sub in (("mesh_dir", "meshes"), ("maps_dir", "maps")) if key in accepted}
     options = _swatch_options(args, args.name)
     scene = SCENES[args.name](w, h, **kwargs, **options)
-    for node in scene.values():
-        if isinstance(node, dict) and node.get("type") == "ply":
-            node["filename"] = os.path.relpath(node["filename"], out.parent)
+    _relative_to_xml(scene, folder)
     from .atomic import atomic_write
 
     atomic_write(out, lambda f: f.write(scene_to_xml(scene).encode()))
@@ -341,8 +370,15 @@ def cmd_compare(args) -> int:
     from .evaluation.compare import run_compare
     from .scenes.builtin import SCENES
 
+    if args.scene.lower().endswith(".xml"):
+        raise ClothError(f"compare takes a built-in scene name ({', '.join(SCENES)}): an XML scene cannot be "
+                         "compared yet")
     if args.scene not in SCENES:
         raise ClothError(f"unknown scene {args.scene!r}: expected one of {', '.join(SCENES)}")
+    if args.variant and args.variant.startswith("scalar_"):
+        # Its regions and references trace Dr.Jit arrays of shapes (mi.ShapePtr), which a
+        # scalar variant does not have.
+        raise ClothError(f"compare needs a JIT variant (llvm_ad_rgb or cuda_ad_rgb), got --variant {args.variant}")
     try:
         budget = float(args.budget)
     except ValueError:
@@ -370,6 +406,11 @@ def cmd_compare(args) -> int:
 def _size(size: int) -> str:
     """A byte count in KiB below 1 MiB, in MiB above."""
     return f"{size / 2**10:.1f} KiB" if size < 2**20 else f"{size / 2**20:.1f} MiB"
+
+
+def _entries(count: int, width: int = 0) -> str:
+    """``1 entry``, ``3 entries`` (the count right-aligned in ``width``)."""
+    return f"{count:{width}d} {'entry' if count == 1 else 'entries'}"
 
 
 def cmd_fabrics(args) -> int:
@@ -401,6 +442,8 @@ def cmd_cache(args) -> int:
             raise ClothError(f"--older-than must be a number of days >= 0, got {args.older_than!r}")
         if not args.clear:
             raise ClothError("--older-than only selects what --clear removes: add --clear")
+    if args.dry_run and not args.clear:
+        raise ClothError("--dry-run only lists what --clear would remove: add --clear")
     root = default_cache_dir()
     entries = cache_entries(root)
     if args.clear:
@@ -412,10 +455,10 @@ def cmd_cache(args) -> int:
             for e in entries:
                 print(f"would remove {e.kind}: {', '.join(p.name for p in e.paths)}")
             size = _size(sum(e.size for e in entries))
-            print(f"mscloth cache: would remove {len(entries)} entries ({size}){unused} from {root}")
+            print(f"mscloth cache: would remove {_entries(len(entries))} ({size}){unused} from {root}")
         else:
             freed = remove_entries(entries)
-            print(f"mscloth cache: removed {len(entries)} entries{unused} ({_size(freed)}) from {root}")
+            print(f"mscloth cache: removed {_entries(len(entries))}{unused} ({_size(freed)}) from {root}")
         return 0
     print(f"mscloth cache: {root}" + ("" if root.is_dir() else " (not created yet)"))
     if args.list:
@@ -428,9 +471,14 @@ def cmd_cache(args) -> int:
         count, size = kinds.get(e.kind, (0, 0))
         kinds[e.kind] = (count + 1, size + e.size)
     for kind, (count, size) in kinds.items():
-        print(f"  {kind:13s} {count:5d} entries  {_size(size):>11s}")
-    print(f"  {'total':13s} {len(entries):5d} entries  {_size(sum(e.size for e in entries)):>11s}")
+        print(f"  {kind:13s} {_entries(count, 5):13s}  {_size(size):>11s}")
+    print(f"  {'total':13s} {_entries(len(entries), 5):13s}  {_size(sum(e.size for e in entries)):>11s}")
     return 0
+
+
+#: --variant's help: mscloth's BSDF is RGB (mscloth.setup_mitsuba refuses other variants).
+VARIANT_HELP = ("an RGB Mitsuba variant: scalar_rgb, llvm_ad_rgb or cuda_ad_rgb (mono, spectral and "
+                "polarized ones are refused; default: mscloth.default_variant())")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -443,7 +491,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                    "are replaced on each run")
     demo.add_argument("--spp", type=_positive_int(1, 65536), default=64, help="samples per pixel (default 64)")
     demo.add_argument("--res", type=_positive_int(16, 8192), default=512, help="image width and height (default 512)")
-    demo.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
+    demo.add_argument("--variant", default=None, help=VARIANT_HELP)
     demo.set_defaults(func=cmd_demo)
 
     render = sub.add_parser("render", help=f"render a built-in scene ({', '.join(SCENE_NAMES)}) or a Mitsuba XML file")
@@ -456,7 +504,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="swatch: key, fill and rim area lights, or Mitsuba's sunsky (default studio)")
     render.add_argument("--spp", type=_positive_int(1, 65536), default=64, help="samples per pixel (default 64)")
     render.add_argument("--res", type=_resolution_arg, default=None, help="WIDTHxHEIGHT (default: the scene's)")
-    render.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
+    render.add_argument("--variant", default=None, help=VARIANT_HELP)
     render.add_argument("--out", default=None, help="output EXR (default out/SCENE.exr: the built-in scene's "
                                                      "name or the XML file's stem); a PNG is written beside it")
     render.add_argument("--force", action="store_true", help="overwrite an existing EXR or PNG")
@@ -467,9 +515,10 @@ def build_parser() -> argparse.ArgumentParser:
     scene = sub.add_parser("scene", help="write a built-in scene as Mitsuba XML to start from")
     scene.add_argument("name", help=", ".join(SCENE_NAMES))
     scene.add_argument("--out", required=True, help="output .xml file")
-    scene.add_argument("--res", type=_resolution_arg, default=None, help="WIDTHxHEIGHT (default 512x288)")
+    scene.add_argument("--res", type=_resolution_arg, default=None,
+                       help="WIDTHxHEIGHT (default: the scene's, as mscloth render's)")
     scene.add_argument("--force", action="store_true", help="overwrite an existing file")
-    scene.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
+    scene.add_argument("--variant", default=None, help=VARIANT_HELP)
     scene.add_argument("--fabric", default=None, help="swatch: the fabric preset (default silk-charmeuse)")
     scene.add_argument("--view", default=None, choices=("close", "arm", "room"), help="swatch: the view (default arm)")
     scene.add_argument("--light", default=None, choices=("studio", "sunsky"), help="swatch: the lighting (default studio)")
@@ -501,7 +550,9 @@ def build_parser() -> argparse.ArgumentParser:
     compare.add_argument("--out", default=None, help="report directory (default out/compare-SCENE); "
                                                      "its report is replaced on each run")
     compare.add_argument("--reference-spp", default="1024", help="spp of the brute-force reference (default 1024)")
-    compare.add_argument("--variant", default=None, help="Mitsuba variant (default: mscloth.default_variant())")
+    compare.add_argument("--variant", default=None,
+                         help="a JIT RGB Mitsuba variant, llvm_ad_rgb or cuda_ad_rgb (default: "
+                              "mscloth.default_variant())")
     compare.add_argument("--sampler", default=None, choices=PIXEL_SAMPLERS,
                          help=f"the pixel sampler of both methods (default {DEFAULT_PIXEL_SAMPLER})")
     compare.set_defaults(func=cmd_compare)
@@ -530,7 +581,18 @@ def main(argv=None) -> int:
     with warnings.catch_warnings():
         warnings.showwarning = _show_warning
         try:
-            return args.func(args)
+            code = args.func(args)
+            sys.stdout.flush()  # here, not at exit: a reader that stopped early is handled below
+            return code
+        except BrokenPipeError:
+            # The reader closed the pipe (`mscloth cache --list | head`): stop quietly, as ls
+            # does. Python's recipe: point stdout at devnull so its flush at exit does not fail
+            # again. 141 (128 + SIGPIPE) is what ls's death by SIGPIPE gives the shell.
+            try:
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            except (OSError, ValueError):  # a stdout without a file descriptor (captured)
+                pass
+            return 141
         except ClothError as error:
             print(f"mscloth: error: {error}", file=sys.stderr)
             return 2

@@ -727,8 +727,13 @@ def fabric(name: str, locate=None) -> Fabric:
             raise ParameterError(f"fabric file {name!r} does not exist")
         return _fabric_file(str(Path(path).resolve()), Path(path).stat().st_mtime_ns)
     if not isinstance(name, str) or name not in FABRICS:
-        close = difflib.get_close_matches(str(name), FABRICS, n=2)
-        hint = f" (did you mean {' or '.join(repr(c) for c in close)}?)" if close else ""
+        # Presets whose name holds the word typed ("silk": its three), then the closest spellings.
+        word = str(name).strip().lower()
+        close = [n for n in FABRICS if word in n] if len(word) >= 3 else []
+        close += [c for c in difflib.get_close_matches(str(name), FABRICS, n=2) if c not in close]
+        shown = [repr(c) for c in close[:4]]
+        hint = f" (did you mean {', '.join(shown[:-1]) + ' or ' if len(shown) > 1 else ''}{shown[-1]}?)" \
+            if shown else ""
         raise ParameterError(f"unknown fabric {name!r}{hint}: expected one of {', '.join(FABRICS)}")
     return FABRICS[name]
 

@@ -77,10 +77,15 @@ def _render_reference(name: str, width: int, height: int, spp: int, quiet: bool)
     import mitsuba as mi
 
     from ..loading import load_dict
-    from ..render import render_progressive
+    from ..render import render_progressive, samples_taken
 
     scene = load_dict(scene_dict(name, width, height, multiscale=False))
-    half = spp // 2
+    # Each half at a count the scene's sampler takes (multijitter rounds 512 up to 528):
+    # asked for another, Mitsuba would round it with a warning on every pass.
+    half = samples_taken(scene, spp // 2)
+    if half != spp // 2 and not quiet:
+        print(f"reference: the scene's sampler takes {half} samples per pixel for each half, not "
+              f"{spp // 2} ({2 * half} in all)", flush=True)
     halves = []
     for i, seed in enumerate(REFERENCE_SEEDS):
         img = render_progressive(scene, half, seed=seed, label=f"reference {i + 1}/2 ({half} spp)", quiet=quiet)
